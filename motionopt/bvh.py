@@ -1,0 +1,355 @@
+"""BVH files: ``load`` into a Motion and ``save`` back, with errors that name file and line.
+
+Supported: any rotation channel order per joint, 3- or 6-channel joints (position
+channels replace the rest offset), End Sites, tabs or spaces, Windows line endings,
+trailing blank lines. Lengths are converted to metres on load and back on save.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import rotations as R
+from .motion import Motion, unit_scale
+from .skeleton import Skeleton
+
+_ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+_POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
+_VALID_CHANNELS = set(_ROTATION_CHANNELS + _POSITION_CHANNELS)
+
+
+class BVHError(ValueError):
+    """A malformed BVH file: says which file, which line, and what was expected."""
+
+    def __init__(self, path: str | os.PathLike, line: int | None, message: str):
+        self.path, self.line, self.message = str(path), line, message
+        where = f"{path}:{line}" if line else str(path)
+        super().__init__(f"{where}: {message}")
+
+
+class _Tokens:
+    """Whitespace tokens of the HIERARCHY section with their line numbers."""
+
+    def __init__(self, lines: list[str], path: str):
+        self.items: list[tuple[str, int]] = []
+        self.path = path
+        self.end_line = len(lines)
+        for i, line in enumerate(lines, start=1):
+            for tok in line.split():
+                self.items.append((tok, i))
+        self.pos = 0
+
+    def next(self, expected: str) -> tuple[str, int]:
+        if self.pos >= len(self.items):
+            raise BVHError(self.path, self.end_line, f"file ends early: expected {expected}")
+        tok = self.items[self.pos]
+        self.pos += 1
+        return tok
+
+    def expect(self, word: str) -> int:
+        tok, line = self.next(repr(word))
+        if tok != word:
+            raise BVHError(self.path, line, f"expected {word!r}, found {tok!r}")
+        return line
+
+    def number(self, what: str) -> float:
+        tok, line = self.next(what)
+        try:
+            value = float(tok)
+        except ValueError:
+            raise BVHError(self.path, line, f"expected a number for {what}, found {tok!r}") from None
+        if not math.isfinite(value):
+            raise BVHError(self.path, line, f"{what} is not finite ({tok})")
+        return value
+
+    def peek(self) -> str | None:
+        return self.items[self.pos][0] if self.pos < len(self.items) else None
+
+
+def guess_unit(offsets: np.ndarray, parents: np.ndarray) -> str:
+    """Guess the length unit from the rest skeleton's height: 'm' for about 1-2.5, else 'cm'."""
+    pos = np.zeros_like(offsets)
+    for j in range(1, len(parents)):
+        pos[j] = pos[parents[j]] + offsets[j]
+    height = float(np.ptp(pos[:, 1])) if len(pos) > 1 else 0.0
+    return "m" if 0 < height < 5.0 else "cm"
+
+
+def _parse_hierarchy(tok: _Tokens):
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[tuple[str, ...]] = []
+    end_sites: dict[int, np.ndarray] = {}
+    name_lines: dict[str, int] = {}
+
+    tok.expect("HIERARCHY")
+    kw, line = tok.next("'ROOT'")
+    if kw != "ROOT":
+        raise BVHError(tok.path, line, f"expected 'ROOT', found {kw!r}")
+
+    def parse_joint(parent: int, keyword_line: int) -> None:
+        name, line = tok.next("a joint name")
+        if name == "{":
+            raise BVHError(tok.path, line, "joint has no name")
+        if name in name_lines:
+            raise BVHError(tok.path, line, f"duplicate joint name {name!r} (first at line {name_lines[name]})")
+        name_lines[name] = line
+        j = len(names)
+        names.append(name)
+        parents.append(parent)
+        tok.expect("{")
+        tok.expect("OFFSET")
+        offsets.append([tok.number(f"OFFSET of {name}") for _ in range(3)])
+        tok.expect("CHANNELS")
+        n_tok, n_line = tok.next("a channel count")
+        if not n_tok.isdigit():
+            raise BVHError(tok.path, n_line, f"expected a channel count for {name}, found {n_tok!r}")
+        chans = []
+        for _ in range(int(n_tok)):
+            c, c_line = tok.next(f"a channel name of {name}")
+            if c not in _VALID_CHANNELS:
+                raise BVHError(tok.path, c_line, f"unknown channel {c!r} for joint {name}; expected one of "
+                               + ", ".join(sorted(_VALID_CHANNELS)))
+            chans.append(c)
+        rot = [c for c in chans if c in _ROTATION_CHANNELS]
+        if len(rot) not in (0, 3) or len(set(chans)) != len(chans):
+            raise BVHError(tok.path, n_line, f"joint {name} must have three distinct rotation channels, got {chans}")
+        channels.append(tuple(chans))
+        while True:
+            kw, kw_line = tok.next("'JOINT', 'End' or '}'")
+            if kw == "}":
+                return
+            if kw == "JOINT":
+                parse_joint(j, kw_line)
+            elif kw == "End":
+                tok.expect("Site")
+                tok.expect("{")
+                tok.expect("OFFSET")
+                end_sites[j] = np.array([tok.number(f"End Site OFFSET of {name}") for _ in range(3)])
+                tok.expect("}")
+            else:
+                raise BVHError(tok.path, kw_line, f"expected 'JOINT', 'End Site' or '}}' inside {name}, found {kw!r}")
+
+    parse_joint(-1, line)
+    if tok.peek() is not None:
+        t, l = tok.items[tok.pos]
+        raise BVHError(tok.path, l, f"expected 'MOTION' after the hierarchy, found {t!r}")
+    return names, parents, offsets, channels, end_sites
+
+
+def read_channels(path: str | os.PathLike) -> tuple[Skeleton, np.ndarray, float]:
+    """Parse a BVH file into its skeleton (in file units), raw channel values (T, C) and frame time."""
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig", errors="strict")
+    except UnicodeDecodeError as e:
+        raise BVHError(path, None, f"not a text file ({e.reason})") from None
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    motion_at = next((i for i, l in enumerate(lines) if l.strip() == "MOTION"), None)
+    if motion_at is None:
+        raise BVHError(path, len(lines), "no MOTION section: the file is truncated or not a BVH file")
+    tok = _Tokens(lines[:motion_at], path)
+    names, parents, offsets, channels, end_sites = _parse_hierarchy(tok)
+    skeleton = Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(channels), end_sites)
+
+    def header(idx: int, key: str) -> str:
+        if idx >= len(lines):
+            raise BVHError(path, idx, f"file ends early: expected '{key}'")
+        line = lines[idx].strip()
+        if not line.startswith(key):
+            raise BVHError(path, idx + 1, f"expected '{key}', found {line[:40]!r}")
+        return line[len(key):].strip()
+
+    frames_txt = header(motion_at + 1, "Frames:")
+    if not frames_txt.isdigit():
+        raise BVHError(path, motion_at + 2, f"expected a whole number of frames, found {frames_txt!r}")
+    n_frames = int(frames_txt)
+    ft_txt = header(motion_at + 2, "Frame Time:")
+    try:
+        frame_time = float(ft_txt)
+    except ValueError:
+        raise BVHError(path, motion_at + 3, f"expected a number for the frame time, found {ft_txt!r}") from None
+    if not (frame_time > 0 and math.isfinite(frame_time)):
+        raise BVHError(path, motion_at + 3, f"frame time must be a positive number of seconds, got {ft_txt}")
+
+    first = motion_at + 3
+    data_lines = lines[first:]
+    while data_lines and not data_lines[-1].strip():
+        data_lines.pop()
+    n_channels = sum(len(c) for c in channels)
+    if n_frames == 0 or not data_lines:
+        raise BVHError(path, first, "empty MOTION section: no frames" if not data_lines
+                       else f"header says 0 frames but {len(data_lines)} data lines follow")
+    if len(data_lines) != n_frames:
+        raise BVHError(path, first + min(len(data_lines), n_frames),
+                       f"header says {n_frames} frames but the file has {len(data_lines)} frame lines")
+    values = np.empty((n_frames, n_channels))
+    for i, line in enumerate(data_lines):
+        parts = line.split()
+        if len(parts) != n_channels:
+            raise BVHError(path, first + i + 1, f"expected {n_channels} channel values, found {len(parts)}")
+        try:
+            values[i] = np.array(parts, dtype=np.float64)
+        except ValueError:
+            bad = next(p for p in parts if not _is_float(p))
+            raise BVHError(path, first + i + 1, f"expected a number, found {bad!r}") from None
+    bad_rows = np.nonzero(~np.isfinite(values).all(axis=1))[0]
+    if len(bad_rows):
+        raise BVHError(path, first + bad_rows[0] + 1, "frame holds NaN or infinite values")
+    return skeleton, values, frame_time
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) -> Motion:
+    """Read a BVH file into a Motion in metres.
+
+    Args:
+        unit: length unit of the file ('cm', 'm', 'mm', 'in'), or 'auto' to guess from
+            the skeleton's height.
+        fps: override the frame rate stated in the file (for files with a wrong header).
+    """
+    skeleton, values, frame_time = read_channels(path)
+    if unit == "auto":
+        unit = guess_unit(skeleton.offsets, skeleton.parents)
+    scale = unit_scale(unit)
+    n_frames, n_joints = values.shape[0], skeleton.num_joints
+    rotations = np.empty((n_frames, n_joints, 4))
+    root = np.zeros((n_frames, 3))
+    translations = np.broadcast_to(skeleton.offsets, (n_frames, n_joints, 3)).copy()
+    hint = np.zeros((n_frames, n_joints, 3))
+    has_positions = False
+    col = 0
+    for j, chans in enumerate(skeleton.channels):
+        block = values[:, col:col + len(chans)]
+        col += len(chans)
+        rot_names = [c for c in chans if c in _ROTATION_CHANNELS]
+        if rot_names:
+            angles = np.stack([block[:, chans.index(c)] for c in rot_names], axis=-1)
+            order = "".join(c[0] for c in rot_names)
+            hint[:, j] = np.deg2rad(angles)
+            rotations[:, j] = R.euler_to_quat(torch.from_numpy(hint[:, j]), order).numpy()
+        else:
+            rotations[:, j] = (1.0, 0.0, 0.0, 0.0)
+        for axis, c in enumerate(_POSITION_CHANNELS):
+            if c in chans:
+                translations[:, j, axis] = block[:, chans.index(c)]
+                has_positions |= j > 0
+    root = translations[:, 0].copy() if any(c in skeleton.channels[0] for c in _POSITION_CHANNELS) \
+        else np.broadcast_to(skeleton.offsets[0], (n_frames, 3)).copy()
+    return Motion(
+        skeleton.scaled(scale),
+        rotations,
+        root * scale,
+        fps=float(fps) if fps else 1.0 / frame_time,
+        translations=translations * scale if has_positions else None,
+        source_unit=unit,
+        euler_hint=hint,
+    )
+
+
+def motion_to_channels(motion: Motion, unit: str | None = None) -> np.ndarray:
+    """Channel values (T, C) for a Motion in its skeleton's channel layout.
+
+    Of the equivalent Euler triples, each frame takes the one nearest the motion's
+    ``euler_hint`` (the angles it was read with) or, without a hint, the one nearest the
+    previous frame's, so curves do not jump by 360 degrees.
+    """
+    scale = 1.0 / unit_scale(unit or motion.source_unit)
+    sk = motion.skeleton
+    trans = motion.local_translations() * scale
+    blocks = []
+    for j, chans in enumerate(sk.channels):
+        rot_names = [c for c in chans if c in _ROTATION_CHANNELS]
+        block = np.zeros((motion.num_frames, len(chans)))
+        if rot_names:
+            order = "".join(c[0] for c in rot_names)
+            eul = R.quat_to_euler(torch.from_numpy(motion.rotations[:, j]), order)
+            if motion.euler_hint is not None:
+                eul = R.euler_nearest(eul, torch.from_numpy(motion.euler_hint[:, j]))
+            else:
+                eul = _continuous(eul)
+            deg = np.rad2deg(eul.numpy())
+            for k, c in enumerate(rot_names):
+                block[:, chans.index(c)] = deg[:, k]
+        for axis, c in enumerate(_POSITION_CHANNELS):
+            if c in chans:
+                block[:, chans.index(c)] = trans[:, j, axis]
+        blocks.append(block)
+    return np.concatenate(blocks, axis=1)
+
+
+def _continuous(eul: torch.Tensor) -> torch.Tensor:
+    """Each frame's Euler triple nearest the previous frame's (a short loop over frames)."""
+    alt = torch.stack((eul[:, 0] + math.pi, math.pi - eul[:, 1], eul[:, 2] + math.pi), dim=-1).numpy()
+    cur = eul.numpy().copy()
+    two_pi = 2 * math.pi
+    for t in range(1, len(cur)):
+        ref = cur[t - 1]
+        a = cur[t] - two_pi * np.round((cur[t] - ref) / two_pi)
+        b = alt[t] - two_pi * np.round((alt[t] - ref) / two_pi)
+        cur[t] = b if ((b - ref) ** 2).sum() < ((a - ref) ** 2).sum() else a
+    return torch.from_numpy(cur)
+
+
+def save(motion: Motion, path: str | os.PathLike, unit: str | None = None, force: bool = False,
+         precision: int = 10) -> Path:
+    """Write a Motion as BVH (in ``unit``, default the unit it was read in).
+
+    Refuses to replace an existing file unless ``force``; writes to a temporary file
+    in the same folder and renames it, so an interrupted run leaves no half file.
+    """
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass force=True (--force) to overwrite it")
+    unit = unit or motion.source_unit
+    scale = 1.0 / unit_scale(unit)
+    sk = motion.skeleton
+    lines = ["HIERARCHY"]
+
+    def fmt(v: np.ndarray) -> str:
+        return " ".join(f"{x:.{precision}g}" for x in v)
+
+    def write_joint(j: int, depth: int) -> None:
+        pad = "\t" * depth
+        kw = "ROOT" if j == 0 else "JOINT"
+        lines.append(f"{pad}{kw} {sk.names[j]}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}\tOFFSET {fmt(sk.offsets[j] * scale)}")
+        lines.append(f"{pad}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}".rstrip())
+        for c in sk.children(j):
+            write_joint(c, depth + 1)
+        if j in sk.end_sites:
+            lines.append(f"{pad}\tEnd Site")
+            lines.append(f"{pad}\t{{")
+            lines.append(f"{pad}\t\tOFFSET {fmt(sk.end_sites[j] * scale)}")
+            lines.append(f"{pad}\t}}")
+        lines.append(f"{pad}}}")
+
+    write_joint(0, 0)
+    values = motion_to_channels(motion, unit)
+    lines += ["MOTION", f"Frames: {motion.num_frames}", f"Frame Time: {1.0 / motion.fps:.10g}"]
+    body = "\n".join(lines) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", newline="\n") as f:
+            f.write(body)
+            np.savetxt(f, values, fmt=f"%.{precision}g")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

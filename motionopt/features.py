@@ -1,0 +1,232 @@
+"""The versioned per-frame feature representation that priors model, with an exact decoder.
+
+Per frame t (version 1):
+- root displacement on the ground plane from frame t-1 to t, in frame t-1's heading frame (2)
+- yaw change from frame t-1 to t, radians (1)
+- root height above the estimated ground, metres (1)
+- root rotation with its heading removed (pitch/roll), 6D (6)
+- local rotations of the other modelled joints, 6D (6 per joint)
+- foot contact labels, 0 or 1 (one per contact joint)
+
+Frame 0 has zero displacement and yaw change; decoding integrates the root from a
+``RootStart`` (frame 0's heading and ground position), so encode then decode is exact.
+Heading is the twist of the root rotation about the vertical axis.
+"""
+from __future__ import annotations
+
+import fnmatch
+import re
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from . import rotations as R
+from .kinematics import fk
+from .motion import Motion
+from .skeleton import Skeleton
+
+FEATURE_VERSION = 1
+
+#: Joints a prior leaves out by default: fingers, eyes, jaw, toe tips of hand-rigged skeletons.
+DEFAULT_DROP = ("*Thumb*", "*Index*", "*Mid[0-9]*", "*Middle*", "*Ring*", "*Pinky*", "*Eye*", "*eye*",
+                "*Jaw*", "*_end", "*End*")
+_FOOT = re.compile(r"(foot|toe|ankle)", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """What a prior models: which joints, which contact joints, at which frame rate."""
+
+    joints: tuple[str, ...]
+    contact_joints: tuple[str, ...]
+    fps: float = 30.0
+    contact_height: float = 0.05
+    contact_speed: float = 0.5
+    version: int = FEATURE_VERSION
+
+    @property
+    def num_contacts(self) -> int:
+        return len(self.contact_joints)
+
+    @property
+    def dim(self) -> int:
+        return 10 + 6 * (len(self.joints) - 1) + self.num_contacts
+
+    @property
+    def pose_dim(self) -> int:
+        """Dimensions modelled as continuous (everything but the contact labels)."""
+        return self.dim - self.num_contacts
+
+    def slices(self) -> dict[str, slice]:
+        j6 = 6 * (len(self.joints) - 1)
+        return {
+            "root_delta": slice(0, 2),
+            "yaw_delta": slice(2, 3),
+            "root_height": slice(3, 4),
+            "root_tilt": slice(4, 10),
+            "joint_rotations": slice(10, 10 + j6),
+            "contacts": slice(10 + j6, self.dim),
+        }
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FeatureSpec":
+        d = dict(d)
+        d["joints"] = tuple(d["joints"])
+        d["contact_joints"] = tuple(d["contact_joints"])
+        return cls(**d)
+
+
+def default_spec(skeleton: Skeleton, fps: float = 30.0, drop: tuple[str, ...] = DEFAULT_DROP) -> FeatureSpec:
+    """A spec for any humanoid skeleton: all joints but fingers and eyes; contacts on the
+    feet and toes found by name. A static top joint (e.g. Bandai's ``joint_Root``) is
+    skipped so that the hips are the root."""
+    names = list(skeleton.names)
+    keep = [n for n in names if not any(fnmatch.fnmatchcase(n, p) for p in drop)]
+    if len(skeleton.children(0)) == 1 and "root" in names[0].lower() and names[0] != keep[-1]:
+        keep = keep[1:]
+    contacts = tuple(n for n in keep if _FOOT.search(n))
+    if not contacts:
+        raise ValueError("no foot or toe joints found by name; pass contact_joints explicitly")
+    return FeatureSpec(tuple(keep), contacts, fps=fps)
+
+
+@dataclass(frozen=True)
+class RootStart:
+    """Where decoding starts: frame 0's heading (yaw, radians) and ground position (x, z),
+    and the ground height that root heights are measured from."""
+
+    yaw: float = 0.0
+    x: float = 0.0
+    z: float = 0.0
+    ground: float = 0.0
+
+
+def to_model_motion(motion: Motion, spec: FeatureSpec) -> Motion:
+    """The motion as the prior sees it: the spec's joints only, at the spec's frame rate.
+
+    Static top joints are folded into the root; other unmodelled joints are removed while
+    keeping world positions of the rest.
+    """
+    m = motion
+    while m.skeleton.names[0] != spec.joints[0]:
+        rerooted = m.reroot()
+        if rerooted is m:
+            raise ValueError(
+                f"the prior's root joint {spec.joints[0]!r} is not the file's root {m.skeleton.names[0]!r} "
+                "and the joints above it move: this skeleton does not match the prior")
+        m = rerooted
+    missing = [n for n in spec.joints if n not in m.skeleton.names]
+    if missing:
+        raise ValueError(f"skeleton lacks joints the prior models: {', '.join(missing)}")
+    m = m.select_joints(list(spec.joints)).bake_translations(tolerance=1e-4)
+    if m.skeleton.names != spec.joints:
+        raise ValueError("joint order differs from the prior's definition")
+    return m.resample(spec.fps)
+
+
+def estimate_ground(positions: np.ndarray, contact_idx: list[int]) -> float:
+    """Ground height: a low percentile of the lowest contact joint per frame."""
+    return float(np.percentile(positions[:, contact_idx, 1].min(axis=1), 5.0))
+
+
+def contact_labels(positions: np.ndarray | Tensor, contact_idx: list[int], fps: float, ground: float,
+                   height: float, speed: float) -> np.ndarray:
+    """1 where a contact joint is within ``height`` metres of its resting height above
+    the ground and moves slower than ``speed`` m/s, else 0. Shape (T, C)."""
+    p = np.asarray(positions)[:, contact_idx]
+    vel = np.zeros(p.shape[:2])
+    vel[1:] = np.linalg.norm(np.diff(p, axis=0), axis=-1) * fps
+    vel[0] = vel[1] if len(vel) > 1 else 0.0
+    rest = np.percentile(p[..., 1], 5.0, axis=0) - ground  # each joint's height when planted
+    h = p[..., 1] - ground - rest
+    return ((h < height) & (vel < speed)).astype(np.float64)
+
+
+def _yaw(q: Tensor) -> Tensor:
+    """Twist angle of rotations about the vertical y axis."""
+    return 2 * torch.atan2(q[..., 2], q[..., 0])
+
+
+def _wrap(a: Tensor) -> Tensor:
+    return torch.atan2(torch.sin(a), torch.cos(a))
+
+
+def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tuple[Tensor, RootStart]:
+    """Features (T, D) of a model motion (see ``to_model_motion``), and where decoding starts."""
+    if motion.skeleton.names != spec.joints:
+        raise ValueError("encode expects a motion on the prior's joints; call to_model_motion first")
+    q = torch.from_numpy(motion.rotations)
+    root = torch.from_numpy(motion.root)
+    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    pos = motion.positions()
+    if ground is None:
+        ground = estimate_ground(pos, cidx)
+    yaw = _yaw(q[:, 0])
+    heading = R.yaw_quat(yaw)
+    tilt = R.quat_multiply(R.quat_conjugate(heading), q[:, 0])
+    delta_world = torch.zeros_like(root)
+    delta_world[1:] = root[1:] - root[:-1]
+    prev_heading = torch.cat((heading[:1], heading[:-1]))
+    delta_local = R.quat_apply(R.quat_conjugate(prev_heading), delta_world)
+    yaw_delta = torch.zeros_like(yaw)
+    yaw_delta[1:] = _wrap(yaw[1:] - yaw[:-1])
+    contacts = contact_labels(pos, cidx, motion.fps, ground, spec.contact_height, spec.contact_speed)
+    x = torch.cat(
+        (
+            delta_local[:, [0, 2]],
+            yaw_delta[:, None],
+            root[:, 1:2] - ground,
+            R.quat_to_6d(tilt),
+            R.quat_to_6d(q[:, 1:]).reshape(len(q), -1),
+            torch.from_numpy(contacts),
+        ),
+        dim=-1,
+    )
+    start = RootStart(float(yaw[0]), float(root[0, 0]), float(root[0, 2]), ground)
+    return x, start
+
+
+def decode(x: Tensor, spec: FeatureSpec, start: RootStart = RootStart()) -> tuple[Tensor, Tensor]:
+    """Local rotations (..., T, J, 4) and root positions (..., T, 3) from features (..., T, D).
+
+    Differentiable; the root is integrated from ``start`` with a cumulative sum, so the
+    result of frame t depends on the features of frames 0..t only.
+    """
+    s = spec.slices()
+    yaw = start.yaw + torch.cumsum(x[..., s["yaw_delta"]].squeeze(-1), dim=-1)
+    prev_yaw = torch.cat((yaw[..., :1], yaw[..., :-1]), dim=-1)
+    d = x[..., s["root_delta"]]
+    c, si = torch.cos(prev_yaw), torch.sin(prev_yaw)
+    # rotate (dx, 0, dz) by yaw about y: x' = c dx + s dz, z' = -s dx + c dz
+    dxw = c * d[..., 0] + si * d[..., 1]
+    dzw = -si * d[..., 0] + c * d[..., 1]
+    root = torch.stack(
+        (start.x + torch.cumsum(dxw, -1), x[..., s["root_height"]].squeeze(-1) + start.ground,
+         start.z + torch.cumsum(dzw, -1)),
+        dim=-1,
+    )
+    tilt = R.sixd_to_quat(x[..., s["root_tilt"]])
+    root_rot = R.quat_multiply(R.yaw_quat(yaw), tilt)
+    n_j = len(spec.joints) - 1
+    joints = R.sixd_to_quat(x[..., s["joint_rotations"]].reshape(*x.shape[:-1], n_j, 6))
+    return torch.cat((root_rot[..., None, :], joints), dim=-2), root
+
+
+def decode_positions(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootStart = RootStart()) -> Tensor:
+    """World joint positions (..., T, J, 3) of features, on the prior's skeleton."""
+    rot, root = decode(x, spec, start)
+    return fk(skeleton.parents, rot, root, torch.as_tensor(skeleton.offsets, dtype=x.dtype))
+
+
+def decode_motion(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootStart = RootStart(),
+                  like: Motion | None = None) -> Motion:
+    """A model Motion from features (no gradient), keeping ``like``'s unit and channels."""
+    with torch.no_grad():
+        rot, root = decode(x.double(), spec, start)
+    return Motion(skeleton, rot.numpy(), root.numpy(), spec.fps,
+                  source_unit=like.source_unit if like is not None else "m")

@@ -1,0 +1,45 @@
+"""Forward kinematics: one pure, differentiable torch function over a parents array."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .rotations import quat_apply, quat_multiply
+
+
+def fk(
+    parents: np.ndarray | list[int],
+    rotations: Tensor,
+    root: Tensor,
+    offsets: Tensor,
+    translations: Tensor | None = None,
+    return_global_rotations: bool = False,
+) -> Tensor | tuple[Tensor, Tensor]:
+    """World joint positions from local rotations.
+
+    Args:
+        parents: (J,) parent index per joint, -1 for the root, parents before children.
+        rotations: (..., J, 4) local unit quaternions, w first.
+        root: (..., 3) world position of the root joint.
+        offsets: (J, 3) or (..., J, 3) rest offsets from each parent.
+        translations: optional (..., J, 3) per-frame local translations that replace
+            ``offsets`` (BVH joints with position channels).
+        return_global_rotations: also return the (..., J, 4) world rotations.
+
+    Returns:
+        positions (..., J, 3), and world rotations if asked.
+    """
+    parents = [int(p) for p in parents]
+    local_t = offsets if translations is None else translations
+    local_t = local_t.to(rotations.dtype).expand(*rotations.shape[:-1], 3)
+    g_rot: list[Tensor] = [rotations[..., 0, :]]
+    g_pos: list[Tensor] = [root]
+    for j in range(1, len(parents)):
+        p = parents[j]
+        g_pos.append(g_pos[p] + quat_apply(g_rot[p], local_t[..., j, :]))
+        g_rot.append(quat_multiply(g_rot[p], rotations[..., j, :]))
+    positions = torch.stack(g_pos, dim=-2)
+    if return_global_rotations:
+        return positions, torch.stack(g_rot, dim=-2)
+    return positions
