@@ -198,13 +198,12 @@ class Motion:
         return self.remove_joints(drop) if drop else self
 
     def reroot(self) -> "Motion":
-        """Drop a static, non-rotating top joint (as in Bandai's ``joint_Root``) so that its
-        single child becomes the root; world positions stay the same."""
+        """Fold a top joint with a single child (as Bandai's ``joint_Root``) into that child,
+        which becomes the root; world positions stay the same. Returns ``self`` when the
+        root has several children."""
         sk = self.skeleton
         children = sk.children(0)
-        static = (np.abs(self.root - self.root[:1]).max() < 1e-9
-                  and np.abs(np.abs(self.rotations[:, 0, 0]) - 1).max() < 1e-12)
-        if len(children) != 1 or not static:
+        if len(children) != 1:
             return self
         c = children[0]
         tr = self.local_translations()

@@ -1,0 +1,70 @@
+"""The ``motionopt`` command: parses arguments and calls library code, nothing more.
+
+Each command group lives in its own module with a ``register(subparsers)`` function
+that adds its subcommands and sets ``func`` on them. Library errors are printed on
+one line to stderr with a non-zero exit.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from ..bvh import BVHError
+
+#: Modules that add subcommands; a module missing here is simply not offered.
+COMMAND_MODULES = ("files", "prior", "tasks", "latent", "demo")
+
+
+class UserError(Exception):
+    """A problem with what the user asked for, reported in one line."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="motionopt",
+        description="Edit human motion by optimization, with learned motion priors.",
+    )
+    parser.add_argument("--version", action="version", version="motionopt 0.1.0")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name == f"{__name__}.{name}":
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
+    """Options every command shares: --quiet and --verbose."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    g.add_argument("-v", "--verbose", action="store_true", help="print details of the work as it goes")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    level = logging.ERROR if getattr(args, "quiet", False) else (
+        logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING)
+    logging.basicConfig(level=level, format="%(levelname)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, BVHError, FileExistsError, FileNotFoundError, KeyError, ValueError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
+        print(f"motionopt {args.command}: error: {msg}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"motionopt {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

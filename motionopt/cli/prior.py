@@ -1,0 +1,127 @@
+"""Commands about priors: train-prior, prior-info, score."""
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+
+from . import UserError, add_common
+
+
+def register(sub) -> None:
+    p = sub.add_parser("train-prior", help="train an autoregressive prior on a folder of BVH files",
+                       description="Train the causal-convolution prior on every BVH file under --data. "
+                       "Resumes from OUT.train-state.pt when it exists; logs to OUT.log.")
+    p.add_argument("--data", required=True, help="folder of BVH files (searched recursively)")
+    p.add_argument("--out", required=True, help="checkpoint file to write")
+    p.add_argument("--val", nargs="*", default=None,
+                   help="clips to hold out (paths relative to --data, patterns allowed); "
+                   "default: the last clip of each sub-folder, or every 10th clip")
+    p.add_argument("--include", nargs="*", default=None, help="train only on clips matching these patterns")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate the prior models (default 30)")
+    p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
+    p.add_argument("--epochs", type=int, default=40)
+    p.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
+    p.add_argument("--licence", default="same as the training data", help="licence of the trained weights")
+    p.add_argument("--force", action="store_true", help="overwrite OUT when there is no state to resume")
+    add_common(p)
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("prior-info", help="print a prior checkpoint's metadata")
+    p.add_argument("checkpoint", help="checkpoint file (.pt)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    add_common(p)
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("score", help="how natural a clip is under a prior (per-frame NLL, worst stretches)")
+    p.add_argument("input", help="BVH file")
+    p.add_argument("--prior", default=None, help="checkpoint (default: the shipped one matching the skeleton)")
+    p.add_argument("--fps", type=float, default=None, help="override the file's frame rate")
+    p.add_argument("--unit", default="auto", help="length unit of the file: cm, m, mm, in or auto")
+    p.add_argument("--json", action="store_true", help="print JSON (key nll_per_frame)")
+    add_common(p)
+    p.set_defaults(func=cmd_score)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from motionopt.dataset import build_dataset
+    from priors.ccnet import CCNetConfig  # noqa: F401  (config defaults documented there)
+    from priors.train import TrainConfig, train_prior
+
+    ds = build_dataset(args.data, fps=args.fps, val=args.val, unit=args.unit, include=args.include)
+    if not args.quiet:
+        print(f"{len(ds.train)} training clips ({ds.num_train_frames} frames at {ds.spec.fps:g} fps), "
+              f"{len(ds.val)} held out; prepared in {ds.seconds_to_build:.1f} s")
+    cfg = TrainConfig(epochs=args.epochs, seed=args.seed, max_minutes=args.max_minutes, threads=args.threads)
+    meta = {"training_command": "motionopt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+            "data": str(Path(args.data)), "licence": args.licence}
+    train_prior(ds, args.out, cfg, metadata=meta, progress=not args.quiet, force=args.force)
+    if not args.quiet:
+        print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from priors.checkpoint import read_checkpoint
+
+    data = read_checkpoint(args.checkpoint)
+    meta = data["metadata"]
+    hist = meta.get("history", [])
+    info = {
+        "kind": data["kind"],
+        "licence": meta.get("licence"),
+        "feature_version": data["spec"]["version"],
+        "fps": data["spec"]["fps"],
+        "joints": data["spec"]["joints"],
+        "contact_joints": data["spec"]["contact_joints"],
+        "feature_dim": len(data["normalizer"]["mean"]),
+        "parameters": sum(v.numel() for v in data["state_dict"].values()),
+        "architecture": data["config"],
+        "data": meta.get("data"),
+        "training_command": meta.get("training_command"),
+        "train_clips": len(meta.get("train_clips", [])),
+        "train_frames": meta.get("train_frames"),
+        "validation_clips": meta.get("validation_clips"),
+        "epochs": meta.get("epochs_done"),
+        "training_minutes": meta.get("training_minutes"),
+        "final_val_nll_per_frame": hist[-1]["val_nll_per_frame"] if hist else None,
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    for k, v in info.items():
+        if isinstance(v, (list, tuple)):
+            v = ", ".join(map(str, v))
+        print(f"{k:>24}: {v}")
+    return 0
+
+
+def load_prior_for(motion, path: str | None):
+    """The named prior, or the shipped one whose skeleton matches the motion."""
+    from priors.checkpoint import check_compatible, find_prior_for, load_prior
+
+    path = path or find_prior_for(motion.skeleton)
+    prior = load_prior(path)
+    check_compatible(prior.spec, motion.skeleton, path)
+    return prior
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from motionopt import bvh
+    from priors.score import score_motion
+
+    motion = bvh.load(args.input, unit=args.unit, fps=args.fps)
+    prior = load_prior_for(motion, args.prior)
+    report = score_motion(prior, motion)
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    elif not args.quiet:
+        print(f"{args.input}: {report.nll_per_frame:.2f} nats per frame under the prior "
+              f"(lower is more natural; {report.frames} frames)")
+        for a, b, v in report.worst:
+            print(f"  frames {a}:{b}  {v:.2f} nats per frame")
+    return 0

@@ -1,0 +1,185 @@
+"""Causal dilated-convolution Gaussian prior (after CCNet, Hou et al. 2021, sections 4-5).
+
+A 1x1 encoder, gated residual blocks of dilated causal convolutions with skip
+connections, and a decoder that outputs, for frame t, a diagonal Gaussian over the
+pose features of frame t (mean as a change from frame t-1, log-std clamped) and
+contact logits, from frames before t only. One teacher-forced pass scores a window.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as Fn
+from torch import Tensor, nn
+
+from motionopt import rotations as R
+from motionopt.dataset import Normalizer
+from motionopt.features import FeatureSpec
+from motionopt.skeleton import Skeleton
+
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+@dataclass(frozen=True)
+class CCNetConfig:
+    """Architecture; ``dilations`` sets the number of blocks and the receptive field."""
+
+    channels: int = 64
+    skip_channels: int = 128
+    dilations: tuple[int, ...] = (1, 2, 4, 8, 16, 1, 2, 4, 8, 16)
+    kernel_size: int = 2
+    log_std_min: float = -5.0
+    log_std_max: float = 1.0
+    input_dropout: float = 0.1
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CCNetConfig":
+        d = dict(d)
+        d["dilations"] = tuple(d["dilations"])
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class GatedResidualBlock(nn.Module):
+    """tanh(filter) * sigmoid(gate) of a dilated causal convolution, with residual and skip outputs."""
+
+    def __init__(self, channels: int, skip: int, kernel: int, dilation: int):
+        super().__init__()
+        self.pad = (kernel - 1) * dilation
+        self.conv = nn.Conv1d(channels, 2 * channels, kernel, dilation=dilation)
+        self.res = nn.Conv1d(channels, channels, 1)
+        self.skip = nn.Conv1d(channels, skip, 1)
+
+    def forward(self, h: Tensor) -> tuple[Tensor, Tensor]:
+        a, b = self.conv(Fn.pad(h, (self.pad, 0))).chunk(2, dim=1)
+        g = torch.tanh(a) * torch.sigmoid(b)
+        return h + self.res(g), self.skip(g)
+
+
+class CCNetPrior(nn.Module):
+    """The causal-convolution prior; implements ``priors.protocol.MotionPrior``."""
+
+    def __init__(self, spec: FeatureSpec, normalizer: Normalizer, skeleton: Skeleton,
+                 config: CCNetConfig = CCNetConfig(), metadata: dict | None = None):
+        super().__init__()
+        self.spec, self.normalizer, self.skeleton = spec, normalizer, skeleton
+        self.config = config
+        self.metadata = dict(metadata or {})
+        d, c = spec.dim, config.channels
+        self.encoder = nn.Sequential(nn.Conv1d(d, c, 1), nn.ReLU(), nn.Conv1d(c, c, 1))
+        self.blocks = nn.ModuleList(GatedResidualBlock(c, config.skip_channels, config.kernel_size, dil)
+                                    for dil in config.dilations)
+        self.decoder = nn.Sequential(nn.ReLU(), nn.Conv1d(config.skip_channels, config.skip_channels, 1), nn.ReLU(),
+                                     nn.Conv1d(config.skip_channels, 2 * spec.pose_dim + spec.num_contacts, 1))
+        nn.init.zeros_(self.decoder[-1].weight)
+        nn.init.zeros_(self.decoder[-1].bias)
+
+    @property
+    def receptive_field(self) -> int:
+        return 1 + sum((self.config.kernel_size - 1) * d for d in self.config.dilations)
+
+    # ---- core pass ---------------------------------------------------------------------
+    def _predict(self, history: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """For every frame of ``history (B, T, D)``: the Gaussian (mean, log-std) and contact
+        logits of the *next* frame. Shapes (B, T, P), (B, T, P), (B, T, C)."""
+        h = history.transpose(1, 2)
+        if self.training and self.config.input_dropout > 0:
+            h = Fn.dropout(h, self.config.input_dropout)
+        h = self.encoder(h)
+        skip = 0
+        for block in self.blocks:
+            h, s = block(h)
+            skip = skip + s
+        out = self.decoder(skip).transpose(1, 2)
+        p = self.spec.pose_dim
+        mean = history[..., :p] + out[..., :p]
+        log_std = out[..., p:2 * p].clamp(self.config.log_std_min, self.config.log_std_max)
+        return mean, log_std, out[..., 2 * p:]
+
+    def _history(self, x: Tensor, context: Tensor | None) -> tuple[Tensor, int]:
+        """Frames that predict ``x``: context (or a zero frame) followed by x without its last."""
+        if context is None or context.shape[-2] == 0:
+            context = torch.zeros_like(x[..., :1, :])
+        full = torch.cat((context.to(x), x), dim=-2)
+        return full[..., :-1, :], context.shape[-2] - 1
+
+    def _flat(self, x: Tensor) -> tuple[Tensor, tuple[int, ...]]:
+        lead = x.shape[:-2]
+        return x.reshape(-1, *x.shape[-2:]), lead
+
+    def gaussian(self, x: Tensor, context: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """Predicted mean, log-std (..., T, P) and contact logits (..., T, C) for frames of ``x``."""
+        if context is not None and context.dim() < x.dim():
+            context = context.expand(*x.shape[:-2], *context.shape[-2:])
+        hist, skip = self._history(x, context)
+        flat, lead = self._flat(hist)
+        mean, log_std, logits = self._predict(flat)
+        T = x.shape[-2]
+        out = [t[:, skip:skip + T] for t in (mean, log_std, logits)]
+        return tuple(t.reshape(*lead, T, t.shape[-1]) for t in out)  # type: ignore[return-value]
+
+    # ---- protocol ----------------------------------------------------------------------
+    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        mean, log_std, _ = self.gaussian(x, context)
+        z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std)
+        return (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1)
+
+    def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        return torch.sigmoid(self.gaussian(x, context)[2])
+
+    @torch.no_grad()
+    def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
+               temperature: float = 1.0) -> Tensor:
+        flat, lead = self._flat(context)
+        rf = self.receptive_field
+        frames = flat
+        p = self.spec.pose_dim
+        new = []
+        for _ in range(n_frames):
+            mean, log_std, logits = self._predict(frames[:, -rf:])
+            noise = torch.randn(mean[:, -1].shape, generator=generator, dtype=mean.dtype, device=mean.device)
+            pose = mean[:, -1] + temperature * torch.exp(log_std[:, -1]) * noise
+            contacts = (logits[:, -1] > 0).to(pose)
+            nxt = self.project(torch.cat((pose, contacts), dim=-1))
+            new.append(nxt)
+            frames = torch.cat((frames[:, -rf + 1:], nxt[:, None]), dim=1)
+        out = torch.stack(new, dim=1)
+        return out.reshape(*lead, n_frames, self.spec.dim)
+
+    def project(self, x: Tensor) -> Tensor:
+        """Normalised features with every 6D rotation made orthonormal (keeps rollouts on
+        the manifold the data lives on)."""
+        raw = self.normalizer.denormalize(x)
+        s = self.spec.slices()
+        parts = []
+        for key in ("root_tilt", "joint_rotations"):
+            v = raw[..., s[key]]
+            six = v.reshape(*v.shape[:-1], -1, 6)
+            parts.append(R.matrix_to_6d(R.sixd_to_matrix(six)).reshape(v.shape))
+        raw = torch.cat((raw[..., :4], parts[0], parts[1], raw[..., s["contacts"]]), dim=-1)
+        return self.normalizer.normalize(raw)
+
+    # ---- training loss -----------------------------------------------------------------
+    def loss(self, x: Tensor, noise_std: float = 0.03, smooth_weight: float = 10.0,
+             contact_weight: float = 2.0) -> tuple[Tensor, dict[str, float]]:
+        """Training loss on windows ``x (B, T, D)``: Gaussian NLL per frame and dimension,
+        plus smoothness of the predicted means and contact cross-entropy. Noise
+        augmentation perturbs the history, not the targets."""
+        p = self.spec.pose_dim
+        hist = x[:, :-1]
+        if noise_std > 0:
+            noise = torch.randn_like(hist) * noise_std
+            noise[..., p:] = 0
+            hist = hist + noise
+        mean, log_std, logits = self._predict(hist)
+        target = x[:, 1:]
+        z = (target[..., :p] - mean) * torch.exp(-log_std)
+        nll = (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1).mean()
+        smooth = (mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]).pow(2).sum(-1).mean()
+        contact = Fn.binary_cross_entropy_with_logits(logits, target[..., p:]) if self.spec.num_contacts else nll * 0
+        total = nll / p + smooth_weight * smooth / p + contact_weight * contact
+        return total, {"nll": float(nll.detach()), "smooth": float(smooth.detach()), "contact": float(contact.detach())}

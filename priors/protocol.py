@@ -1,0 +1,45 @@
+"""The protocol every autoregressive motion prior follows.
+
+The solver and the problems depend on this protocol only, so a new prior (a recurrent
+GMM, a transformer) plugs in without touching them. Features are the normalised
+per-frame vectors of ``motionopt.features`` (``spec`` and ``normalizer`` say how).
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import torch
+from torch import Tensor
+
+from motionopt.dataset import Normalizer
+from motionopt.features import FeatureSpec
+from motionopt.skeleton import Skeleton
+
+
+@runtime_checkable
+class MotionPrior(Protocol):
+    """A differentiable autoregressive density over normalised feature sequences."""
+
+    spec: FeatureSpec
+    normalizer: Normalizer
+    skeleton: Skeleton
+    metadata: dict
+
+    @property
+    def receptive_field(self) -> int:
+        """How many past frames can influence the prediction of a frame."""
+
+    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        """Per-frame negative log-likelihood -log p(x_t | x_<t) of frames ``x (..., T, D)``.
+
+        ``context (..., C, D)`` holds frames before ``x``; returns ``(..., T)``, one
+        teacher-forced pass, differentiable in ``x`` and ``context``. Contact dimensions
+        of ``x`` are history only; they are not scored.
+        """
+
+    def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        """Probability (..., T, C) that each contact joint touches the ground at each frame."""
+
+    def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
+               temperature: float = 1.0) -> Tensor:
+        """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``."""

@@ -1,0 +1,62 @@
+"""How natural a motion is under a prior: per-frame NLL and the worst stretches."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from motionopt.features import encode, to_model_motion
+from motionopt.motion import Motion
+
+from .checkpoint import check_compatible
+
+
+@dataclass
+class ScoreReport:
+    """Mean per-frame negative log-likelihood and the frame ranges that score worst.
+
+    Frames are numbered in the input motion's frame rate; ``worst`` holds
+    ``(start, stop, mean_nll)`` half-open ranges, worst first.
+    """
+
+    nll_per_frame: float
+    frames: int
+    prior_fps: float
+    per_frame: np.ndarray = field(repr=False)
+    worst: list[tuple[int, int, float]]
+
+    def to_dict(self) -> dict:
+        return {"nll_per_frame": self.nll_per_frame, "frames": self.frames, "prior_fps": self.prior_fps,
+                "worst": [{"start": a, "stop": b, "nll_per_frame": v} for a, b, v in self.worst]}
+
+
+def features_of(prior, motion: Motion) -> torch.Tensor:
+    """Normalised features (T, D) of a motion for ``prior`` (resampled, joints selected)."""
+    check_compatible(prior.spec, motion.skeleton)
+    model = to_model_motion(motion, prior.spec)
+    x, _ = encode(model, prior.spec)
+    return prior.normalizer.normalize(x).float()
+
+
+@torch.no_grad()
+def score_motion(prior, motion: Motion, window_seconds: float = 1.0, n_worst: int = 3) -> ScoreReport:
+    """Score every frame after the first under the prior; report the worst windows."""
+    x = features_of(prior, motion)
+    if len(x) < 2:
+        raise ValueError("the clip is too short to score: it needs at least two frames at the prior's rate")
+    nll = prior.nll(x[1:], context=x[:1]).double().numpy()
+    per = np.concatenate([[nll[0]], nll])
+    w = max(1, int(round(window_seconds * prior.spec.fps)))
+    scale = motion.fps / prior.spec.fps
+    sums = np.convolve(per, np.ones(w) / w, mode="valid")
+    worst: list[tuple[int, int, float]] = []
+    taken = np.zeros(len(sums), bool)
+    for i in np.argsort(-sums):
+        if len(worst) >= n_worst:
+            break
+        if taken[max(0, i - w + 1): i + w].any():
+            continue
+        taken[i] = True
+        worst.append((int(round(i * scale)), min(motion.num_frames, int(round((i + w) * scale))), float(sums[i])))
+    return ScoreReport(float(nll.mean()), motion.num_frames, prior.spec.fps, per, worst)
