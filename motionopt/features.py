@@ -194,12 +194,13 @@ def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tu
 def decode(x: Tensor, spec: FeatureSpec, start: RootStart = RootStart()) -> tuple[Tensor, Tensor]:
     """Local rotations (..., T, J, 4) and root positions (..., T, 3) from features (..., T, D).
 
-    Differentiable; the root is integrated from ``start`` with a cumulative sum, so the
-    result of frame t depends on the features of frames 0..t only.
+    Differentiable; the root is integrated from ``start`` (the state of the frame before
+    ``x``; for a whole clip, frame 0 itself, whose deltas are zero) with a cumulative sum,
+    so the result of frame t depends on the features of frames 0..t only.
     """
     s = spec.slices()
     yaw = start.yaw + torch.cumsum(x[..., s["yaw_delta"]].squeeze(-1), dim=-1)
-    prev_yaw = torch.cat((yaw[..., :1], yaw[..., :-1]), dim=-1)
+    prev_yaw = torch.cat((torch.full_like(yaw[..., :1], start.yaw), yaw[..., :-1]), dim=-1)
     d = x[..., s["root_delta"]]
     c, si = torch.cos(prev_yaw), torch.sin(prev_yaw)
     # rotate (dx, 0, dz) by yaw about y: x' = c dx + s dz, z' = -s dx + c dz

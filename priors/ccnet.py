@@ -100,10 +100,13 @@ class CCNetPrior(nn.Module):
         log_std = out[..., p:2 * p].clamp(self.config.log_std_min, self.config.log_std_max)
         return mean, log_std, out[..., 2 * p:]
 
-    def _history(self, x: Tensor, context: Tensor | None) -> tuple[Tensor, int]:
-        """Frames that predict ``x``: context (or a zero frame) followed by x without its last."""
+    def _history(self, x: Tensor, context: Tensor | None, noise: Tensor | None = None) -> tuple[Tensor, int]:
+        """Frames that predict ``x``: context (or a zero frame) followed by x (plus the input
+        noise ``noise`` where given) without its last frame."""
         if context is None or context.shape[-2] == 0:
             context = torch.zeros_like(x[..., :1, :])
+        if noise is not None:
+            x = x + noise
         full = torch.cat((context.to(x), x), dim=-2)
         return full[..., :-1, :], context.shape[-2] - 1
 
@@ -111,11 +114,12 @@ class CCNetPrior(nn.Module):
         lead = x.shape[:-2]
         return x.reshape(-1, *x.shape[-2:]), lead
 
-    def gaussian(self, x: Tensor, context: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def gaussian(self, x: Tensor, context: Tensor | None = None,
+                 noise: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Predicted mean, log-std (..., T, P) and contact logits (..., T, C) for frames of ``x``."""
         if context is not None and context.dim() < x.dim():
             context = context.expand(*x.shape[:-2], *context.shape[-2:])
-        hist, skip = self._history(x, context)
+        hist, skip = self._history(x, context, noise)
         flat, lead = self._flat(hist)
         mean, log_std, logits = self._predict(flat)
         T = x.shape[-2]
@@ -123,13 +127,17 @@ class CCNetPrior(nn.Module):
         return tuple(t.reshape(*lead, T, t.shape[-1]) for t in out)  # type: ignore[return-value]
 
     # ---- protocol ----------------------------------------------------------------------
-    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
-        mean, log_std, _ = self.gaussian(x, context)
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None,
+                         noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        mean, log_std, logits = self.gaussian(x, context, noise)
         z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std)
-        return (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1)
+        return (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1), torch.sigmoid(logits)
+
+    def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
+        return self.nll_and_contacts(x, context, noise)[0]
 
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
-        return torch.sigmoid(self.gaussian(x, context)[2])
+        return self.nll_and_contacts(x, context)[1]
 
     @torch.no_grad()
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,

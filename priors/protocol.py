@@ -29,13 +29,19 @@ class MotionPrior(Protocol):
     def receptive_field(self) -> int:
         """How many past frames can influence the prediction of a frame."""
 
-    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+    def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
         """Per-frame negative log-likelihood -log p(x_t | x_<t) of frames ``x (..., T, D)``.
 
         ``context (..., C, D)`` holds frames before ``x``; returns ``(..., T)``, one
         teacher-forced pass, differentiable in ``x`` and ``context``. Contact dimensions
-        of ``x`` are history only; they are not scored.
+        of ``x`` are history only; they are not scored. ``noise (..., T, D)``, when given,
+        is added to the frames of ``x`` where they serve as history (the input noise d of
+        the MAP formulation), not where they are scored.
         """
+
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None,
+                         noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """``nll`` and ``predict_contacts`` from one pass (what the solver calls)."""
 
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         """Probability (..., T, C) that each contact joint touches the ground at each frame."""
