@@ -146,8 +146,10 @@ def quat_to_axis_angle(q: Tensor) -> Tensor:
     s = torch.sqrt(s_sq.clamp_min(1e-24))
     angle = 2 * torch.atan2(s, w)
     small = s_sq < 1e-8
-    # angle / sin(angle/2) -> 2 / w * (1 + s^2/(6 w^2)) near zero
-    k = torch.where(small, 2.0 / w * (1 + s_sq / (6 * w * w)), angle / s)
+    # 2 atan2(s, w) / s -> 2 / w * (1 - s^2 / (3 w^2)) near zero; w is about 1 there, and
+    # replaced by 1 elsewhere so that the unused branch has no infinite gradient at angle pi.
+    w_safe = torch.where(small, w, torch.ones_like(w))
+    k = torch.where(small, 2.0 / w_safe * (1 - s_sq / (3 * w_safe * w_safe)), angle / s)
     return v * k
 
 
@@ -218,20 +220,27 @@ def euler_to_matrix(angles: Tensor, order: str) -> Tensor:
 
 
 def matrix_to_euler(m: Tensor, order: str) -> Tensor:
-    """Rotation matrices to intrinsic Euler angles (..., 3), middle angle in [-pi/2, pi/2]."""
+    """Rotation matrices to intrinsic Euler angles (..., 3), middle angle in [-pi/2, pi/2].
+
+    At gimbal lock (middle angle +/- pi/2) only the sum or difference of the outer angles
+    is defined: it all goes to the first angle and the third is 0.
+    """
     i, j, k = _check_order(order)
     parity = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
-    r_ik = m[..., i, k]
     cos_b = torch.sqrt((m[..., i, i] ** 2 + m[..., i, j] ** 2).clamp_min(1e-24))
-    b = torch.atan2(parity * r_ik, cos_b)
-    gimbal = cos_b < 1e-7
-    a_reg = torch.atan2(-parity * m[..., j, k], m[..., k, k])
-    c_reg = torch.atan2(-parity * m[..., i, j], m[..., i, i])
-    # At gimbal lock only a +/- c is defined: put it all on the first angle.
-    a_lock = torch.atan2(parity * m[..., k, j], m[..., j, j])
-    a = torch.where(gimbal, a_lock, a_reg)
-    c = torch.where(gimbal, torch.zeros_like(c_reg), c_reg)
-    return torch.stack((a, b, c), dim=-1)
+    b = torch.atan2(parity * m[..., i, k], cos_b)
+    # Below sqrt(machine eps) the regular formulas lose more accuracy than the lock formula.
+    gimbal = cos_b < torch.finfo(m.dtype).eps ** 0.5
+
+    def safe_atan2(y: Tensor, x: Tensor, use: Tensor) -> Tensor:
+        # atan2 where ``use``, 0 elsewhere, with a finite gradient everywhere
+        x = torch.where(use, x, torch.ones_like(x))
+        return torch.where(use, torch.atan2(torch.where(use, y, torch.zeros_like(y)), x), torch.zeros_like(x))
+
+    a_reg = safe_atan2(-parity * m[..., j, k], m[..., k, k], ~gimbal)
+    c_reg = safe_atan2(-parity * m[..., i, j], m[..., i, i], ~gimbal)
+    a_lock = safe_atan2(parity * m[..., k, j], m[..., j, j], gimbal)
+    return torch.stack((a_reg + a_lock, b, c_reg), dim=-1)
 
 
 def quat_to_euler(q: Tensor, order: str) -> Tensor:
@@ -261,25 +270,35 @@ def euler_nearest(angles: Tensor, reference: Tensor) -> Tensor:
 
 
 def quat_slerp(a: Tensor, b: Tensor, t: Tensor | float) -> Tensor:
-    """Spherical linear interpolation from ``a`` to ``b`` at fraction ``t`` (shortest arc)."""
+    """Spherical linear interpolation from ``a`` to ``b`` at fraction ``t`` (shortest arc).
+
+    ``t`` is a number or has the leading shape of ``a``; differentiable everywhere
+    (nearly equal rotations fall back to normalised linear interpolation).
+    """
     t = torch.as_tensor(t, dtype=a.dtype, device=a.device)
+    t = t[..., None] if t.dim() == a.dim() - 1 else t
     dot = (a * b).sum(-1, keepdim=True)
     b = torch.where(dot < 0, -b, b)
-    dot = dot.abs().clamp(max=1.0)
-    t = t[..., None] if t.dim() == a.dim() - 1 else t
-    theta = torch.acos(dot)
-    sin_theta = torch.sin(theta)
-    near = sin_theta < 1e-6
-    safe = torch.where(near, torch.ones_like(sin_theta), sin_theta)
-    wa = torch.where(near, 1 - t, torch.sin((1 - t) * theta) / safe)
-    wb = torch.where(near, t, torch.sin(t * theta) / safe)
+    dot = dot.abs()
+    near = dot > 1 - 1e-6
+    theta = torch.acos(torch.where(near, torch.zeros_like(dot), dot))
+    sin_theta = torch.where(near, torch.ones_like(theta), torch.sin(theta))
+    wa = torch.where(near, 1 - t, torch.sin((1 - t) * theta) / sin_theta)
+    wb = torch.where(near, t, torch.sin(t * theta) / sin_theta)
     return quat_normalize(wa * a + wb * b)
 
 
 def quat_angle(a: Tensor, b: Tensor) -> Tensor:
-    """Geodesic angle in radians between two unit quaternions (..., 4)."""
-    dot = (a * b).sum(-1).abs().clamp(max=1.0)
-    return 2 * torch.acos(dot)
+    """Geodesic angle in radians, in [0, pi], between unit quaternions (..., 4).
+
+    Computed as ``2 atan2(|v|, |w|)`` of the relative rotation, which is accurate for
+    small angles (unlike ``acos``) and has a finite gradient at angle 0.
+    """
+    d = quat_multiply(quat_conjugate(a), b)
+    v_sq = (d[..., 1:] ** 2).sum(-1)
+    zero = v_sq == 0
+    v_norm = torch.where(zero, torch.zeros_like(v_sq), torch.sqrt(torch.where(zero, torch.ones_like(v_sq), v_sq)))
+    return 2 * torch.atan2(v_norm, d[..., 0].abs())
 
 
 def yaw_quat(angle: Tensor) -> Tensor:
