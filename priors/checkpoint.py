@@ -19,6 +19,8 @@ from motionopt.skeleton import Skeleton
 CHECKPOINT_DIR = Path(__file__).parent / "checkpoints"
 #: Shipped checkpoints in order of preference when a skeleton matches several.
 SHIPPED = ("cmu-ccnet.pt", "bandai-locomotion-ccnet.pt")
+#: Shipped latent (W+) priors, in the same order of preference.
+SHIPPED_LATENT = ("cmu-latent.pt", "bandai-latent.pt")
 
 
 class CheckpointError(ValueError):
@@ -84,9 +86,10 @@ def read_checkpoint(path: str | Path) -> dict:
 def load_prior(path: str | Path):
     """Load a prior checkpoint, ready for evaluation (eval mode, float32)."""
     from .ccnet import CCNetConfig, CCNetPrior
+    from .latent import LatentConfig, LatentPrior
 
     data = read_checkpoint(path)
-    kinds = {"CCNetPrior": (CCNetPrior, CCNetConfig)}
+    kinds = {"CCNetPrior": (CCNetPrior, CCNetConfig), "LatentPrior": (LatentPrior, LatentConfig)}
     if data["kind"] not in kinds:
         raise CheckpointError(f"{path}: unknown prior kind {data['kind']!r}")
     cls, cfg = kinds[data["kind"]]
@@ -100,8 +103,8 @@ def load_prior(path: str | Path):
     return prior
 
 
-def shipped_checkpoints() -> list[Path]:
-    return [CHECKPOINT_DIR / n for n in SHIPPED if (CHECKPOINT_DIR / n).exists()]
+def shipped_checkpoints(names: tuple[str, ...] = SHIPPED) -> list[Path]:
+    return [CHECKPOINT_DIR / n for n in names if (CHECKPOINT_DIR / n).exists()]
 
 
 def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "the prior") -> None:
@@ -114,12 +117,13 @@ def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "
             "skeleton (`motionopt train-prior --data YOUR_BVH_FOLDER`).")
 
 
-def find_prior_for(skeleton: Skeleton) -> Path:
-    """The first shipped checkpoint whose modelled joints the skeleton has."""
-    for path in shipped_checkpoints():
+def find_prior_for(skeleton: Skeleton, names: tuple[str, ...] = SHIPPED,
+                   train_command: str = "train-prior") -> Path:
+    """The first shipped checkpoint (of ``names``) whose modelled joints the skeleton has."""
+    for path in shipped_checkpoints(names):
         spec = FeatureSpec.from_dict(read_checkpoint(path)["spec"])
         if all(n in skeleton.names for n in spec.joints):
             return path
     raise CheckpointError(
         f"no shipped prior models this skeleton (root {skeleton.names[0]!r}, {skeleton.num_joints} joints); "
-        "train one with `motionopt train-prior --data YOUR_BVH_FOLDER --out my-prior.pt` and pass --prior")
+        f"train one with `motionopt {train_command} --data YOUR_BVH_FOLDER --out my-prior.pt` and pass --prior")
