@@ -49,3 +49,43 @@ class MotionPrior(Protocol):
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
                temperature: float = 1.0) -> Tensor:
         """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``."""
+
+
+@runtime_checkable
+class LatentMotionPrior(Protocol):
+    """A generator of fixed-length windows driven by W+ codes, with encoders into W+
+    (``priors.latent.LatentPrior``). Windows are normalised features (B, window, D);
+    W+ codes are (B, num_ws, w_dim), one w per generator layer; contact dimensions of
+    generated windows hold probabilities."""
+
+    spec: FeatureSpec
+    normalizer: Normalizer
+    skeleton: Skeleton
+    metadata: dict
+
+    @property
+    def window(self) -> int:
+        """Frames per generated window."""
+
+    @property
+    def num_ws(self) -> int:
+        """Style codes per W+ code (one per generator layer)."""
+
+    @property
+    def mean_w(self) -> Tensor:
+        """Mean (w_dim,) of the mapping network's outputs."""
+
+    def mapping(self, z: Tensor) -> Tensor:
+        """w (B, w_dim) of latent noise z (B, z_dim)."""
+
+    def generate(self, wplus: Tensor) -> Tensor:
+        """Windows (B, window, D) of W+ codes; differentiable."""
+
+    def encode(self, x: Tensor) -> Tensor:
+        """W+ codes of windows, in one forward pass."""
+
+    def encode_masked(self, x: Tensor, mask: Tensor) -> Tensor:
+        """W+ codes of windows of which only frames with ``mask (B, window)`` true are seen."""
+
+    def whiten(self, w: Tensor) -> Tensor:
+        """Coordinates of codes (..., w_dim) along W's principal directions, in standard deviations."""

@@ -36,6 +36,7 @@ from motionopt.metrics_latent import frechet_distance, local_position_error_mm, 
 
 from .checkpoint import atomic_torch_save, save_prior
 from .latent import Discriminator, LatentConfig, LatentPrior
+from .semantic import fit_attribute_directions, fit_style_directions
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +55,7 @@ class LatentTrainConfig:
     stride: int = 4
     lr: float = 0.002
     encoder_lr: float = 0.0005
-    r1_gamma: float = 1.0
+    r1_gamma: float = 5.0
     r1_interval: int = 16
     mixing_prob: float = 0.9
     ema_beta: float = 0.998
@@ -361,7 +362,19 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
         trainer.load_state(torch.load(sp, map_location="cpu", weights_only=False))
         trainer.prior.metadata.update({k: v for k, v in meta.items() if k != "training_command"})
         log.warning("resuming %s: %s phase, epoch %d", out, trainer.phase, trainer.epoch)
-    if trainer.phase is None:
-        return trainer.prior.eval()
-    return trainer.run(out, progress)
+    prior = trainer.prior if trainer.phase is None else trainer.run(out, progress)
+    if trainer.phase is None and "attribute_directions" not in prior.metadata:
+        add_directions(prior, dataset, config.seed)
+        save_prior(prior, out)
+    return prior.eval()
+
+
+def add_directions(prior: LatentPrior, dataset: MotionDataset, seed: int = 0) -> None:
+    """Fit the semantic directions (computed attributes, and style labels of the training
+    clip names when there are any) into ``prior.metadata['attribute_directions']``."""
+    prior.eval()
+    dirs = fit_attribute_directions(prior, seed=seed)
+    clips = {k: dataset.normalizer.normalize(v) for k, v in dataset.train.items()}
+    dirs.update(fit_style_directions(prior, clips, seed=seed))
+    prior.metadata["attribute_directions"] = {k: d.to_dict() for k, d in dirs.items()}
 

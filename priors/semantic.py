@@ -1,0 +1,143 @@
+"""Semantic directions in the latent prior's W space (MoDi section 4.1, appendix C.2).
+
+A direction is the unit normal of a linear classifier in W:
+- for computed attributes (``motionopt.attributes``): sample w from the mapping network,
+  generate, score each motion, label it by whether its score is above the median, fit
+  a logistic regression on w;
+- for style labels (Bandai file names): encode windows of the labelled training clips,
+  average each W+ code over layers, fit one-vs-rest logistic regression.
+
+An edit adds ``strength * scale * direction`` to every layer of a W+ code, where
+``scale`` is the standard deviation of sampled w along the direction: strength is in
+standard deviations of W.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from motionopt import attributes as A
+from motionopt.features import RootStart, decode, decode_positions
+
+from .latent import LatentPrior
+
+
+@dataclass
+class Direction:
+    """A unit direction in W, its scale (std of W along it) and the classifier's accuracy
+    on held-out samples."""
+
+    name: str
+    direction: list[float]
+    scale: float
+    accuracy: float
+    source: str
+
+    def vector(self) -> Tensor:
+        return torch.tensor(self.direction, dtype=torch.float32)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class AttributeScorer:
+    """Scores of normalised windows (B, T, D) of one prior: gral, root speed, crouch depth."""
+
+    def __init__(self, prior: LatentPrior):
+        self.prior = prior
+        sk = prior.skeleton
+        self.arm = A.right_arm(sk.names, sk.parents)
+        cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+        self.standing = A.standing_height(sk, cidx)
+        self.height_dim = prior.spec.slices()["root_height"].start
+
+    def __call__(self, x: Tensor) -> dict[str, Tensor]:
+        raw = self.prior.normalizer.denormalize(x.double())
+        pos = decode_positions(raw, self.prior.spec, self.prior.skeleton, RootStart())
+        return {"gral": A.gradual_right_arm_lift(pos, *self.arm),
+                "root_speed": A.root_speed(pos[..., 0, :], self.prior.spec.fps),
+                "crouch": A.crouch_depth(raw[..., self.height_dim], self.standing)}
+
+    def root_path(self, x: Tensor) -> Tensor:
+        """Root positions (B, T, 3) of windows decoded from the origin."""
+        raw = self.prior.normalizer.denormalize(x.double())
+        return decode(raw, self.prior.spec, RootStart())[1]
+
+
+def _fit(name: str, w: np.ndarray, labels: np.ndarray, source: str, w_all: np.ndarray, seed: int) -> Direction | None:
+    """Logistic regression on codes ``w``; None when the codes do not separate at all."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import train_test_split
+
+    if labels.min() == labels.max() or np.bincount(labels).min() < 5:
+        return None
+    wtr, wte, ytr, yte = train_test_split(w, labels, test_size=0.2, random_state=seed, stratify=labels)
+    clf = LogisticRegression(max_iter=2000, C=1.0, class_weight="balanced").fit(wtr, ytr)
+    norm = np.linalg.norm(clf.coef_[0])
+    if not norm > 0:
+        return None
+    n = clf.coef_[0] / norm
+    scale = float((w_all @ n).std())
+    return Direction(name, n.tolist(), scale, float(clf.score(wte, yte)), source)
+
+
+@torch.no_grad()
+def fit_attribute_directions(prior: LatentPrior, n: int = 2000, seed: int = 0) -> dict[str, Direction]:
+    """Directions of the computed attributes from ``n`` sampled motions."""
+    g = torch.Generator().manual_seed(seed)
+    w = prior.sample_w(n, g)
+    scorer = AttributeScorer(prior)
+    scores: dict[str, list[Tensor]] = {k: [] for k in A.ATTRIBUTES}
+    for i in range(0, n, 256):
+        s = scorer(prior.generate(prior.broadcast(w[i:i + 256])))
+        for k in scores:
+            scores[k].append(s[k])
+    wn = w.double().numpy()
+    out = {}
+    for k, v in scores.items():
+        sc = torch.cat(v).numpy()
+        d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{n} sampled motions, above/below median score", wn, seed)
+        if d is not None:
+            out[k] = d
+    return out
+
+
+@torch.no_grad()
+def fit_style_directions(prior: LatentPrior, clips: dict[str, Tensor], stride: int = 16, seed: int = 0,
+                         min_windows: int = 20) -> dict[str, Direction]:
+    """One direction per style label found in the clip names (normalised features by name)."""
+    codes, labels = [], []
+    for name, x in clips.items():
+        style = A.style_of(name)
+        if style is None or len(x) < prior.window:
+            continue
+        win = x.float().unfold(0, prior.window, stride).permute(0, 2, 1)
+        codes.append(prior.encode(win).mean(1))
+        labels += [style] * len(win)
+    if not codes:
+        return {}
+    w = torch.cat(codes).double().numpy()
+    labels_np = np.array(labels)
+    w_all = prior.sample_w(4096, torch.Generator().manual_seed(seed)).double().numpy()
+    out = {}
+    for style in sorted(set(labels)):
+        y = (labels_np == style).astype(int)
+        if y.sum() < min_windows:
+            continue
+        d = _fit(f"style:{style}", w, y, "encoded windows of labelled clips, one vs rest", w_all, seed)
+        if d is not None:
+            out[d.name] = d
+    return out
+
+
+def directions_of(prior: LatentPrior) -> dict[str, Direction]:
+    """Directions stored in the checkpoint's metadata (``attribute_directions``)."""
+    return {k: Direction(**v) for k, v in prior.metadata.get("attribute_directions", {}).items()}
+
+
+def edit_codes(wplus: Tensor, d: Direction, strength: float) -> Tensor:
+    """W+ codes moved by ``strength`` standard deviations along a direction, every layer."""
+    return wplus + strength * d.scale * d.vector().to(wplus)
