@@ -14,7 +14,7 @@ import sys
 from ..bvh import BVHError
 
 #: Modules that add subcommands; a module missing here is simply not offered.
-COMMAND_MODULES = ("files", "prior", "tasks", "latent", "demo")
+COMMAND_MODULES = ("files", "prior", "tasks", "latent", "view", "demo")
 
 
 class UserError(Exception):

@@ -1,0 +1,128 @@
+"""Commands that draw motions: ``render`` (animated stick figure) and ``plot`` (pictures)."""
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+
+from . import UserError, add_common
+
+KINDS = ("filmstrip", "path", "trajectory")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("render", help="animate a BVH clip as a stick figure (GIF)",
+                       description="Write an animated GIF of a stick figure moving on a floor grid, with "
+                       "its shadow and planted feet highlighted; the camera follows the body from the side.")
+    p.add_argument("input", help="BVH file")
+    p.add_argument("--out", required=True, help="GIF file to write")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second of the animation (default: the clip's, at most 25); "
+                   "the clip is resampled so that it plays at real speed")
+    _add_frame_range(p)
+    p.add_argument("--size", default="640x480", help="picture size in pixels, WIDTHxHEIGHT (default 640x480)")
+    p.add_argument("--elevation", type=float, default=15.0,
+                   help="degrees the camera looks down (default 15; 0 is a plain side view)")
+    p.add_argument("--title", default=None, help="text in the top right corner (default: the file name)")
+    _add_input_options(p)
+    add_common(p)
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("plot", help="draw pictures of BVH clips (filmstrip, root path, joint trajectory)",
+                       description="Draw one PNG of one or more BVH clips: 'filmstrip' shows stick figures at "
+                       "moments spread over the clip, one row per file; 'path' shows the root's path on the "
+                       "ground seen from above; 'trajectory' shows one joint's x, y, z over time, one line per file.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH files (several are compared in one picture)")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("--kind", choices=KINDS, default="filmstrip", help="which picture (default filmstrip)")
+    p.add_argument("--joint", default=None, help="joint for --kind trajectory (default: the first foot joint)")
+    p.add_argument("--frames", type=int, default=6, help="stick figures per row for --kind filmstrip (default 6)")
+    p.add_argument("--elevation", type=float, default=0.0,
+                   help="degrees the filmstrip camera looks down (default 0: side view)")
+    p.add_argument("--labels", default=None, help="comma-separated names for the inputs (default: file names)")
+    p.add_argument("--title", default=None, help="picture title")
+    _add_frame_range(p)
+    _add_input_options(p)
+    add_common(p)
+    p.set_defaults(func=cmd_plot)
+
+
+def _add_frame_range(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--start", type=int, default=0, help="first frame to use (the file's numbering, from 0)")
+    p.add_argument("--stop", type=int, default=None, help="frame to stop before (default: the end of the clip)")
+
+
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--source-fps", type=float, default=None, help="override the frame rate written in the file")
+    p.add_argument("--unit", default="auto", help="length unit of the file: cm, m, mm, in or auto")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+
+
+def _load(path: str, args: argparse.Namespace):
+    """The file's motion cut to --start/--stop."""
+    from motionopt import bvh
+
+    motion = bvh.load(path, unit=args.unit, fps=args.source_fps)
+    n = motion.num_frames
+    stop = n if args.stop is None else args.stop
+    if not 0 <= args.start < n:
+        raise UserError(f"--start {args.start} is outside {path}, whose frames are 0 to {n - 1}")
+    if not args.start < stop <= n:
+        raise UserError(f"--stop {stop} must be after --start {args.start} and at most {n} (the frame count of {path})")
+    if stop - args.start < 2:
+        raise UserError("--start and --stop leave fewer than 2 frames to draw")
+    return motion[args.start:stop]
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from motionopt.plot import GIF_FPS, check_output, render_gif
+
+    out = check_output(args.out, (".gif",), args.force)
+    size = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.size)
+    if not size:
+        raise UserError(f"--size {args.size!r}: write the size as WIDTHxHEIGHT in pixels, e.g. 640x480")
+    motion = _load(args.input, args)
+    render_gif(motion, out, fps=args.fps, size=(int(size[1]), int(size[2])), elevation=args.elevation,
+               first_frame=args.start, title=args.title if args.title is not None else Path(args.input).name,
+               progress=not args.quiet, force=args.force)
+    if not args.quiet:
+        rate = args.fps or min(motion.fps, GIF_FPS)
+        print(f"wrote {out} ({motion.duration:.2f} s at {rate:g} frames per second)")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from motionopt import plot
+    from motionopt.features import default_spec
+
+    out = plot.check_output(args.out, (".png",), args.force)
+    labels = [x.strip() for x in args.labels.split(",")] if args.labels else _names(args.inputs)
+    if len(labels) != len(args.inputs):
+        raise UserError(f"--labels gives {len(labels)} names for {len(args.inputs)} inputs")
+    motions = {label: _load(path, args) for label, path in zip(labels, args.inputs)}
+    if args.kind == "filmstrip":
+        plot.plot_filmstrip(motions, out, frames=args.frames, elevation=args.elevation, first_frame=args.start,
+                            title=args.title, force=args.force)
+    elif args.kind == "path":
+        plot.plot_root_paths(motions, out, **({"title": args.title} if args.title else {}), force=args.force)
+    else:
+        first = next(iter(motions.values()))
+        joint = args.joint
+        if joint is None:
+            try:
+                joint = default_spec(first.skeleton).contact_joints[0]
+            except ValueError:
+                joint = first.skeleton.names[plot.body_root(first.skeleton)]
+        for label, m in motions.items():
+            if joint not in m.skeleton.names:
+                raise UserError(f"joint {joint!r} is not in {label}; its joints are: {', '.join(m.skeleton.names)}")
+        plot.plot_joint_trajectories(motions, joint, out, title=args.title, force=args.force)
+    if not args.quiet:
+        print(f"wrote {out}")
+    return 0
+
+
+def _names(paths: list[str]) -> list[str]:
+    """File names without .bvh as labels; whole paths where two files share a name."""
+    names = [Path(p).stem for p in paths]
+    return names if len(set(names)) == len(names) else list(paths)

@@ -1,0 +1,273 @@
+"""Pictures and the render/plot commands, on the real clips shipped in tests/data."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from motionopt import bvh
+from motionopt import plot as P
+from motionopt.cli import main
+
+DATA = Path(__file__).parent / "data"
+
+
+def _clip(pattern: str) -> Path:
+    found = sorted(DATA.glob(pattern))
+    if not found:
+        pytest.skip(f"no {pattern} clip in tests/data")
+    return found[0]
+
+
+@pytest.fixture(scope="module")
+def walk_path() -> Path:
+    return _clip("bandai-walk*.bvh")  # 22 joints with joint_Root above the hips, 30 fps
+
+
+@pytest.fixture(scope="module")
+def walk(walk_path):
+    return bvh.load(walk_path)
+
+
+@pytest.fixture(scope="module")
+def martial_path() -> Path:
+    return _clip("cmu-martial*.bvh")  # 43 joints with fingers and eyes, 120 fps, centimetres
+
+
+@pytest.fixture(scope="module")
+def martial(martial_path):
+    return bvh.load(martial_path)
+
+
+def _rgb(path: Path) -> np.ndarray:
+    with Image.open(path) as im:
+        assert im.format == "PNG"
+        return np.asarray(im.convert("RGB")).astype(int)
+
+
+def _has_colour(img: np.ndarray, hex_colour: str, min_pixels: int = 20) -> bool:
+    rgb = np.array([int(hex_colour[i:i + 2], 16) for i in (1, 3, 5)])
+    return int((np.abs(img - rgb).sum(axis=-1) < 30).sum()) >= min_pixels
+
+
+# ---- what is drawn ------------------------------------------------------------------------
+
+def test_stick_figure_of_a_walk(walk):
+    sf = P.stick_figure(walk)
+    sk = walk.skeleton
+    hips = P.body_root(sk)
+    assert sk.names[hips] == "Hips"  # joint_Root is a helper, not drawn
+    np.testing.assert_allclose(sf.points[:, sf.root], walk.positions()[:, hips], atol=1e-9)
+    assert sf.points.shape[:2] == (walk.num_frames, sk.num_joints - 1 + len(sk.end_sites))
+    assert all(0 <= p < len(sf.sides) and 0 <= c < len(sf.sides) for p, c in sf.bones)
+    assert sf.head is not None and sf.neck is not None
+    # the lowest points stand on the floor that was found
+    assert abs(np.percentile(sf.points[..., 1].min(axis=1), 50) - sf.ground) < 0.05
+    # walking: each foot is planted some of the time, lifted some of the time; only feet are planted
+    planted = sf.contacts.any(axis=0)
+    assert 0 < sf.contacts.mean() < 0.5
+    assert planted.any() and not planted[sf.root] and not planted[sf.head]
+    assert {int(s) for s in sf.sides[planted]} == {-1, 1}
+    assert (sf.sides == 1).sum() == (sf.sides == -1).sum()
+
+
+def test_stick_figure_leaves_fingers_and_eyes_out(martial):
+    sf = P.stick_figure(martial)
+    kept = [n for n in martial.skeleton.names if not any(k in n for k in ("Thumb", "Index", "Mid", "Ring",
+                                                                          "Pinky", "Eye"))]
+    feet_ends = [j for j in martial.skeleton.end_sites if "Foot" in martial.skeleton.names[j]]
+    assert sf.points.shape[1] == len(kept) + len(feet_ends)
+
+
+def test_camera_sees_a_walk_from_the_side(walk):
+    sf = P.stick_figure(walk)
+    cam = P.Camera.beside(sf)
+    travel = sf.points[-1, 0] - sf.points[0, 0]
+    assert travel @ cam.forward > 0.95 * np.linalg.norm(travel[[0, 2]])  # walks to the right
+    assert abs(cam.forward @ cam.left) < 1e-12 and abs(cam.left[1]) < 1e-12
+    up = cam.project(np.array([0.0, 1.0, 0.0]))
+    np.testing.assert_allclose(up, [0.0, 1.0], atol=1e-12)
+    tilted = P.Camera.beside(sf, 30.0)
+    assert tilted.project(np.array([0.0, 1.0, 0.0]))[1] == pytest.approx(np.cos(np.deg2rad(30)))
+    assert tilted.depth(tilted.left) > tilted.depth(-tilted.left)  # +left is away from the camera
+
+
+# ---- PNG pictures -------------------------------------------------------------------------
+
+def test_filmstrip(walk, tmp_path):
+    out = P.plot_filmstrip({"input": walk, "output": walk[10:]}, tmp_path / "film.png", frames=4)
+    img = _rgb(out)
+    assert img.shape[1] > img.shape[0] > 200  # a strip: wider than tall
+    panels = img[: int(0.85 * img.shape[0])]  # without the legend below them
+    for colour in (P.LEFT_COLOR, P.RIGHT_COLOR, P.CONTACT_COLOR):
+        assert _has_colour(panels, colour, min_pixels=100)
+
+
+def test_filmstrip_of_given_frames_with_a_tilted_camera(martial, tmp_path):
+    out = P.plot_filmstrip({"martial": martial}, tmp_path / "film.png", frames=[0, 100, 239], elevation=20)
+    assert _has_colour(_rgb(out), P.RIGHT_COLOR)
+    with pytest.raises(ValueError, match="0..239"):
+        P.plot_filmstrip({"martial": martial}, tmp_path / "bad.png", frames=[0, 240])
+    with pytest.raises(ValueError, match="at least one frame"):
+        P.plot_filmstrip({"martial": martial}, tmp_path / "bad.png", frames=0)
+    assert not (tmp_path / "bad.png").exists()
+
+
+def test_root_paths_against_a_target(walk, tmp_path):
+    hips = walk.positions()[:, P.body_root(walk.skeleton)]
+    target = hips[::10][:, [0, 2]] + [0.3, 0.0]
+    out = P.plot_root_paths({"walk": walk, "array": hips + [0.6, 0, 0]}, tmp_path / "path.png", target=target)
+    img = _rgb(out)
+    assert _has_colour(img, "#1f77b4") and _has_colour(img, "#ff7f0e")  # the two paths, C0 and C1
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        P.plot_root_paths({"walk": walk}, tmp_path / "bad.png", target=np.zeros((1, 2)))
+    with pytest.raises(ValueError, match="shape"):
+        P.plot_root_paths({"walk": np.zeros((5, 4))}, tmp_path / "bad.png")
+
+
+def test_joint_trajectories_noisy_against_clean(walk, tmp_path):
+    rng = np.random.default_rng(0)
+    j = walk.skeleton.index("Hand_L")
+    clean = walk.positions()
+    noisy = clean + rng.normal(0.0, 0.02, clean.shape)
+    out = P.plot_joint_trajectories({"noisy": noisy, "clean": walk}, j, tmp_path / "traj.png", fps=walk.fps)
+    img = _rgb(out)
+    assert _has_colour(img, "#1f77b4") and _has_colour(img, "#ff7f0e")
+    with pytest.raises(ValueError, match="fps"):
+        P.plot_joint_trajectories({"noisy": noisy}, j, tmp_path / "bad.png")
+    with pytest.raises(KeyError, match="Nope"):
+        P.plot_joint_trajectories({"clean": walk}, "Nope", tmp_path / "bad.png")
+
+
+def test_pictures_are_not_overwritten_without_force(walk, tmp_path):
+    out = tmp_path / "path.png"
+    out.write_bytes(b"mine")
+    with pytest.raises(FileExistsError, match="force"):
+        P.plot_root_paths({"walk": walk}, out)
+    assert out.read_bytes() == b"mine"
+    P.plot_root_paths({"walk": walk}, out, force=True)
+    assert _rgb(out).size > 0
+    with pytest.raises(ValueError, match=".png"):
+        P.plot_root_paths({"walk": walk}, tmp_path / "path.jpg")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        P.plot_root_paths({"walk": walk}, tmp_path / "missing" / "path.png")
+
+
+# ---- animation ----------------------------------------------------------------------------
+
+def _gif_frames(path: Path) -> tuple[int, list[int], tuple[int, int]]:
+    with Image.open(path) as im:
+        assert im.format == "GIF"
+        durations = []
+        for k in range(im.n_frames):
+            im.seek(k)
+            durations.append(im.info["duration"])
+        return im.n_frames, durations, im.size
+
+
+def test_gif_plays_at_real_speed(martial, tmp_path):
+    clip = martial[:120]  # 1 s at 120 fps
+    out = P.render_gif(clip, tmp_path / "m.gif", fps=20, size=(160, 120))
+    n, durations, size = _gif_frames(out)
+    assert size == (160, 120)
+    assert n == 20  # frames at 0, 1/20, ..., 19/20 s (the clip ends at 119/120 s)
+    assert all(d == 50 for d in durations)
+    with pytest.raises(FileExistsError):
+        P.render_gif(clip, out, fps=20, size=(160, 120))
+
+
+def test_gif_default_rate_and_moving_figure(walk, tmp_path):
+    out = P.render_gif(walk[:30], tmp_path / "w.gif", size=(160, 120), elevation=0)
+    n, durations, _ = _gif_frames(out)
+    assert n == int(np.floor((29 / walk.fps) * P.GIF_FPS + 1e-6)) + 1
+    assert set(durations) == {40}
+    with Image.open(out) as im:
+        first = np.asarray(im.convert("RGB")).astype(int)
+        im.seek(n - 1)
+        last = np.asarray(im.convert("RGB")).astype(int)
+    assert np.abs(first - last).sum(axis=-1).astype(bool).sum() > 200  # the figure moved
+
+
+def test_gif_rejects_bad_settings(walk, tmp_path):
+    with pytest.raises(ValueError, match="positive"):
+        P.render_gif(walk, tmp_path / "a.gif", fps=0)
+    with pytest.raises(ValueError, match="too small"):
+        P.render_gif(walk, tmp_path / "a.gif", size=(20, 20))
+    with pytest.raises(ValueError, match=".gif"):
+        P.render_gif(walk, tmp_path / "a.mp4")
+    assert not list(tmp_path.iterdir())
+
+
+# ---- commands -----------------------------------------------------------------------------
+
+def _one_line_error(capsys, command: str) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"motionopt {command}: error: ") and "\n" not in err, err
+    return err
+
+
+def test_render_command(walk_path, tmp_path, capsys):
+    out = tmp_path / "walk.gif"
+    args = ["render", str(walk_path), "--out", str(out), "--fps", "10", "--start", "5", "--stop", "35",
+            "--size", "200x150"]
+    assert main(args + ["-q"]) == 0
+    assert capsys.readouterr().out == ""
+    n, durations, size = _gif_frames(out)
+    assert (n, size) == (10, (200, 150)) and set(durations) == {100}  # 30 frames at 30 fps, shown at 10 fps
+    assert main(args) == 1
+    assert "--force" in _one_line_error(capsys, "render")
+    assert main(args + ["--force"]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--size", "big"], "WIDTHxHEIGHT"),
+    (["--start", "500"], "--start 500"),
+    (["--start", "10", "--stop", "5"], "--stop 5"),
+    (["--fps", "-3"], "positive"),
+])
+def test_render_command_errors(walk_path, tmp_path, capsys, extra, message):
+    out = tmp_path / "walk.gif"
+    assert main(["render", str(walk_path), "--out", str(out)] + extra) == 1
+    assert message in _one_line_error(capsys, "render")
+    assert not out.exists()
+
+
+def test_plot_command_kinds(walk_path, martial_path, tmp_path, capsys):
+    for kind in ("filmstrip", "path", "trajectory"):
+        out = tmp_path / f"{kind}.png"
+        assert main(["plot", str(walk_path), str(walk_path), "--labels", "a,b", "--kind", kind, "--frames", "3",
+                     "--out", str(out), "-q"]) == 0
+        assert _rgb(out).shape[0] > 100
+    out = tmp_path / "hand.png"
+    assert main(["plot", str(martial_path), "--kind", "trajectory", "--joint", "lHand", "--start", "20",
+                 "--out", str(out)]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--kind", "trajectory", "--joint", "Nope"], "joint 'Nope' is not in"),
+    (["--labels", "one,two"], "2 names for 1 inputs"),
+    (["--stop", "1"], "fewer than 2 frames"),
+])
+def test_plot_command_errors(walk_path, tmp_path, capsys, extra, message):
+    out = tmp_path / "x.png"
+    assert main(["plot", str(walk_path), "--out", str(out)] + extra) == 1
+    assert message in _one_line_error(capsys, "plot")
+    assert not out.exists()
+
+
+def test_plot_command_file_errors(walk_path, tmp_path, capsys):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT hip\n{\n  OFFSET 0 0\n")
+    assert main(["plot", str(bad), "--out", str(tmp_path / "x.png")]) == 1
+    assert "bad.bvh" in _one_line_error(capsys, "plot")
+    assert main(["plot", str(walk_path), "--out", str(tmp_path / "x.jpg")]) == 1
+    assert ".png" in _one_line_error(capsys, "plot")
+    existing = tmp_path / "keep.png"
+    existing.write_bytes(b"mine")
+    assert main(["plot", str(walk_path), "--out", str(existing)]) == 1
+    assert "--force" in _one_line_error(capsys, "plot")
+    assert existing.read_bytes() == b"mine"
