@@ -171,25 +171,30 @@ class Camera:
         return p @ (np.cos(e) * self.left - np.sin(e) * np.array([0.0, 1.0, 0.0]))
 
     @classmethod
-    def beside(cls, fig: StickFigure, elevation_deg: float = 0.0) -> "Camera":
-        """A camera that sees ``fig`` from its side: screen right along the root's travel
-        when it travels over a metre, else along the way the body faces on average."""
-        root = fig.points[:, fig.root]
-        travel = root[-1] - root[0]
+    def beside(cls, sf: StickFigure, elevation_deg: float = 0.0) -> "Camera":
+        """A camera that sees ``sf`` from its side: screen right along the root's travel
+        when it travels over a metre, else the way the body faces on average."""
+        up = np.array([0.0, 1.0, 0.0])
+        travel = sf.points[-1, sf.root] - sf.points[0, sf.root]
         travel[1] = 0.0
         if np.linalg.norm(travel) > 1.0:
             forward = travel / np.linalg.norm(travel)
         else:
-            lat = fig.points[:, fig.sides > 0].mean(axis=1) - fig.points[:, fig.sides < 0].mean(axis=1) \
-                if (fig.sides > 0).any() and (fig.sides < 0).any() else np.tile([1.0, 0.0, 0.0], (fig.num_frames, 1))
-            lat[:, 1] = 0.0
-            lat = (lat / np.maximum(np.linalg.norm(lat, axis=-1, keepdims=True), 1e-9)).mean(axis=0)
-            if np.linalg.norm(lat) < 1e-6:
-                lat = np.array([1.0, 0.0, 0.0])
-            lat = lat / np.linalg.norm(lat)
-            forward = np.cross(lat, [0.0, 1.0, 0.0])  # left x up = forward (y up, right-handed)
-        left = np.cross([0.0, 1.0, 0.0], forward)
+            forward = np.cross(_mean_left(sf), up)  # left x up = forward (y up, right-handed)
+        left = np.cross(up, forward)
         return cls(forward, left / np.linalg.norm(left), np.deg2rad(elevation_deg))
+
+
+def _mean_left(sf: StickFigure) -> np.ndarray:
+    """Unit ground-plane vector from the body's right side to its left, averaged over
+    frames (the x axis when the joints have no left/right names)."""
+    if not ((sf.sides > 0).any() and (sf.sides < 0).any()):
+        return np.array([1.0, 0.0, 0.0])
+    lat = sf.points[:, sf.sides > 0].mean(axis=1) - sf.points[:, sf.sides < 0].mean(axis=1)
+    lat[:, 1] = 0.0
+    lat = (lat / np.maximum(np.linalg.norm(lat, axis=-1, keepdims=True), 1e-9)).mean(axis=0)
+    n = np.linalg.norm(lat)
+    return lat / n if n > 1e-6 else np.array([1.0, 0.0, 0.0])
 
 
 # ---- shared drawing pieces ---------------------------------------------------------------------

@@ -222,19 +222,6 @@ def test_render_command(walk_path, tmp_path, capsys):
     assert f"wrote {out}" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--size", "big"], "WIDTHxHEIGHT"),
-    (["--start", "500"], "--start 500"),
-    (["--start", "10", "--stop", "5"], "--stop 5"),
-    (["--fps", "-3"], "positive"),
-])
-def test_render_command_errors(walk_path, tmp_path, capsys, extra, message):
-    out = tmp_path / "walk.gif"
-    assert main(["render", str(walk_path), "--out", str(out)] + extra) == 1
-    assert message in _one_line_error(capsys, "render")
-    assert not out.exists()
-
-
 def test_plot_command_kinds(walk_path, martial_path, tmp_path, capsys):
     for kind in ("filmstrip", "path", "trajectory"):
         out = tmp_path / f"{kind}.png"
@@ -247,15 +234,19 @@ def test_plot_command_kinds(walk_path, martial_path, tmp_path, capsys):
     assert f"wrote {out}" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--kind", "trajectory", "--joint", "Nope"], "joint 'Nope' is not in"),
-    (["--labels", "one,two"], "2 names for 1 inputs"),
-    (["--stop", "1"], "fewer than 2 frames"),
+@pytest.mark.parametrize("command, extra, message", [
+    ("render", ["--size", "big"], "WIDTHxHEIGHT"),
+    ("render", ["--start", "500"], "--start 500"),
+    ("render", ["--start", "10", "--stop", "5"], "--stop 5"),
+    ("render", ["--fps", "-3"], "positive"),
+    ("plot", ["--kind", "trajectory", "--joint", "Nope"], "joint 'Nope' is not in"),
+    ("plot", ["--labels", "one,two"], "2 names for 1 inputs"),
+    ("plot", ["--stop", "1"], "fewer than 2 frames"),
 ])
-def test_plot_command_errors(walk_path, tmp_path, capsys, extra, message):
-    out = tmp_path / "x.png"
-    assert main(["plot", str(walk_path), "--out", str(out)] + extra) == 1
-    assert message in _one_line_error(capsys, "plot")
+def test_command_errors(walk_path, tmp_path, capsys, command, extra, message):
+    out = tmp_path / ("x.gif" if command == "render" else "x.png")
+    assert main([command, str(walk_path), "--out", str(out)] + extra) == 1
+    assert message in _one_line_error(capsys, command)
     assert not out.exists()
 
 
