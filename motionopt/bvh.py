@@ -38,10 +38,11 @@ class _Tokens:
     def __init__(self, lines: list[str], path: str):
         self.items: list[tuple[str, int]] = []
         self.path = path
-        self.end_line = len(lines)
+        self.end_line = 1
         for i, line in enumerate(lines, start=1):
             for tok in line.split():
                 self.items.append((tok, i))
+                self.end_line = i
         self.pos = 0
 
     def next(self, expected: str) -> tuple[str, int]:
@@ -72,12 +73,16 @@ class _Tokens:
 
 
 def guess_unit(offsets: np.ndarray, parents: np.ndarray) -> str:
-    """Guess the length unit from the rest skeleton's height: 'm' for about 1-2.5, else 'cm'."""
+    """Guess the length unit from the rest skeleton's size (its largest extent along an
+    axis): under 5 is metres, under 500 centimetres, more is millimetres. A human is
+    about 1.7 m; inches (about 67) cannot be told from centimetres, so pass the unit."""
     pos = np.zeros_like(offsets)
     for j in range(1, len(parents)):
         pos[j] = pos[parents[j]] + offsets[j]
-    height = float(np.ptp(pos[:, 1])) if len(pos) > 1 else 0.0
-    return "m" if 0 < height < 5.0 else "cm"
+    extent = float(np.ptp(pos, axis=0).max()) if len(pos) > 1 else 0.0
+    if 0 < extent < 5.0:
+        return "m"
+    return "cm" if extent < 500.0 else "mm"
 
 
 def _parse_hierarchy(tok: _Tokens):
@@ -150,18 +155,22 @@ def read_channels(path: str | os.PathLike) -> tuple[Skeleton, np.ndarray, float]
         text = Path(path).read_text(encoding="utf-8-sig", errors="strict")
     except UnicodeDecodeError as e:
         raise BVHError(path, None, f"not a text file ({e.reason})") from None
+    except (IsADirectoryError, PermissionError) as e:
+        raise BVHError(path, None, f"cannot read the file: {e.strerror}") from None
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    while lines and not lines[-1].strip():
+        lines.pop()
     motion_at = next((i for i, l in enumerate(lines) if l.strip() == "MOTION"), None)
-    if motion_at is None:
-        raise BVHError(path, len(lines), "no MOTION section: the file is truncated or not a BVH file")
-    tok = _Tokens(lines[:motion_at], path)
+    tok = _Tokens(lines if motion_at is None else lines[:motion_at], path)
     names, parents, offsets, channels, end_sites = _parse_hierarchy(tok)
+    if motion_at is None:
+        raise BVHError(path, tok.end_line, "file ends after the hierarchy: expected 'MOTION'")
     skeleton = Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(channels), end_sites)
 
     def header(idx: int, key: str) -> str:
         if idx >= len(lines):
             raise BVHError(path, idx, f"file ends early: expected '{key}'")
-        line = lines[idx].strip()
+        line = " ".join(lines[idx].split())  # "Frame\tTime:" reads as "Frame Time:"
         if not line.startswith(key):
             raise BVHError(path, idx + 1, f"expected '{key}', found {line[:40]!r}")
         return line[len(key):].strip()
@@ -180,15 +189,16 @@ def read_channels(path: str | os.PathLike) -> tuple[Skeleton, np.ndarray, float]
 
     first = motion_at + 3
     data_lines = lines[first:]
-    while data_lines and not data_lines[-1].strip():
-        data_lines.pop()
     n_channels = sum(len(c) for c in channels)
-    if n_frames == 0 or not data_lines:
-        raise BVHError(path, first, "empty MOTION section: no frames" if not data_lines
-                       else f"header says 0 frames but {len(data_lines)} data lines follow")
+    if n_frames == 0:
+        raise BVHError(path, motion_at + 2, "empty MOTION section: the header says 0 frames")
+    if not data_lines:
+        raise BVHError(path, first, f"empty MOTION section: the header says {n_frames} frames but no frame lines follow")
     if len(data_lines) != n_frames:
-        raise BVHError(path, first + min(len(data_lines), n_frames),
+        # point at the first extra line, or at the last line of a short file
+        raise BVHError(path, first + min(len(data_lines), n_frames + 1),
                        f"header says {n_frames} frames but the file has {len(data_lines)} frame lines")
+    columns = [f"{name} {c}" for name, chans in zip(names, channels) for c in chans]
     values = np.empty((n_frames, n_channels))
     for i, line in enumerate(data_lines):
         parts = line.split()
@@ -197,11 +207,14 @@ def read_channels(path: str | os.PathLike) -> tuple[Skeleton, np.ndarray, float]
         try:
             values[i] = np.array(parts, dtype=np.float64)
         except ValueError:
-            bad = next(p for p in parts if not _is_float(p))
-            raise BVHError(path, first + i + 1, f"expected a number, found {bad!r}") from None
-    bad_rows = np.nonzero(~np.isfinite(values).all(axis=1))[0]
-    if len(bad_rows):
-        raise BVHError(path, first + bad_rows[0] + 1, "frame holds NaN or infinite values")
+            k = next(k for k, p in enumerate(parts) if not _is_float(p))
+            raise BVHError(path, first + i + 1,
+                           f"expected a number for {columns[k]} (value {k + 1}), found {parts[k]!r}") from None
+    bad = np.argwhere(~np.isfinite(values))
+    if len(bad):
+        i, k = bad[0]
+        raise BVHError(path, first + i + 1,
+                       f"{columns[k]} (value {k + 1}) is {data_lines[i].split()[k]}: expected a finite number")
     return skeleton, values, frame_time
 
 
@@ -226,10 +239,11 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
         unit = guess_unit(skeleton.offsets, skeleton.parents)
     scale = unit_scale(unit)
     n_frames, n_joints = values.shape[0], skeleton.num_joints
-    rotations = np.empty((n_frames, n_joints, 4))
-    root = np.zeros((n_frames, 3))
+    rotations = np.zeros((n_frames, n_joints, 4))
+    rotations[..., 0] = 1.0
     translations = np.broadcast_to(skeleton.offsets, (n_frames, n_joints, 3)).copy()
     hint = np.zeros((n_frames, n_joints, 3))
+    by_order: dict[str, list[int]] = {}
     has_positions = False
     col = 0
     for j, chans in enumerate(skeleton.channels):
@@ -237,16 +251,15 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
         col += len(chans)
         rot_names = [c for c in chans if c in _ROTATION_CHANNELS]
         if rot_names:
-            angles = np.stack([block[:, chans.index(c)] for c in rot_names], axis=-1)
-            order = "".join(c[0] for c in rot_names)
-            hint[:, j] = np.deg2rad(angles)
-            rotations[:, j] = R.euler_to_quat(torch.from_numpy(hint[:, j]), order).numpy()
-        else:
-            rotations[:, j] = (1.0, 0.0, 0.0, 0.0)
+            hint[:, j] = np.deg2rad(np.stack([block[:, chans.index(c)] for c in rot_names], axis=-1))
+            by_order.setdefault("".join(c[0] for c in rot_names), []).append(j)
         for axis, c in enumerate(_POSITION_CHANNELS):
             if c in chans:
                 translations[:, j, axis] = block[:, chans.index(c)]
                 has_positions |= j > 0
+    # one conversion per Euler order, not per joint: small torch calls are costly on a busy CPU
+    for order, joints in by_order.items():
+        rotations[:, joints] = R.euler_to_quat(torch.from_numpy(hint[:, joints]), order).numpy()
     root = translations[:, 0].copy() if any(c in skeleton.channels[0] for c in _POSITION_CHANNELS) \
         else np.broadcast_to(skeleton.offsets[0], (n_frames, 3)).copy()
     return Motion(
@@ -270,20 +283,25 @@ def motion_to_channels(motion: Motion, unit: str | None = None) -> np.ndarray:
     scale = 1.0 / unit_scale(unit or motion.source_unit)
     sk = motion.skeleton
     trans = motion.local_translations() * scale
+    by_order: dict[str, list[int]] = {}
+    for j, chans in enumerate(sk.channels):
+        rot_names = [c for c in chans if c in _ROTATION_CHANNELS]
+        if rot_names:
+            by_order.setdefault("".join(c[0] for c in rot_names), []).append(j)
+    degrees = np.zeros((motion.num_frames, sk.num_joints, 3))
+    for order, joints in by_order.items():
+        eul = R.quat_to_euler(torch.from_numpy(motion.rotations[:, joints]), order)
+        if motion.euler_hint is not None:
+            eul = R.euler_nearest(eul, torch.from_numpy(motion.euler_hint[:, joints]))
+        else:
+            eul = _continuous(eul)
+        degrees[:, joints] = np.rad2deg(eul.numpy())
     blocks = []
     for j, chans in enumerate(sk.channels):
         rot_names = [c for c in chans if c in _ROTATION_CHANNELS]
         block = np.zeros((motion.num_frames, len(chans)))
-        if rot_names:
-            order = "".join(c[0] for c in rot_names)
-            eul = R.quat_to_euler(torch.from_numpy(motion.rotations[:, j]), order)
-            if motion.euler_hint is not None:
-                eul = R.euler_nearest(eul, torch.from_numpy(motion.euler_hint[:, j]))
-            else:
-                eul = _continuous(eul)
-            deg = np.rad2deg(eul.numpy())
-            for k, c in enumerate(rot_names):
-                block[:, chans.index(c)] = deg[:, k]
+        for k, c in enumerate(rot_names):
+            block[:, chans.index(c)] = degrees[:, j, k]
         for axis, c in enumerate(_POSITION_CHANNELS):
             if c in chans:
                 block[:, chans.index(c)] = trans[:, j, axis]
@@ -292,15 +310,16 @@ def motion_to_channels(motion: Motion, unit: str | None = None) -> np.ndarray:
 
 
 def _continuous(eul: torch.Tensor) -> torch.Tensor:
-    """Each frame's Euler triple nearest the previous frame's (a short loop over frames)."""
-    alt = torch.stack((eul[:, 0] + math.pi, math.pi - eul[:, 1], eul[:, 2] + math.pi), dim=-1).numpy()
+    """Each frame's Euler triples (T, ..., 3) nearest the previous frame's (a loop over frames)."""
+    alt = torch.stack((eul[..., 0] + math.pi, math.pi - eul[..., 1], eul[..., 2] + math.pi), dim=-1).numpy()
     cur = eul.numpy().copy()
     two_pi = 2 * math.pi
     for t in range(1, len(cur)):
         ref = cur[t - 1]
         a = cur[t] - two_pi * np.round((cur[t] - ref) / two_pi)
         b = alt[t] - two_pi * np.round((alt[t] - ref) / two_pi)
-        cur[t] = b if ((b - ref) ** 2).sum() < ((a - ref) ** 2).sum() else a
+        closer = ((b - ref) ** 2).sum(-1, keepdims=True) < ((a - ref) ** 2).sum(-1, keepdims=True)
+        cur[t] = np.where(closer, b, a)
     return torch.from_numpy(cur)
 
 
@@ -347,6 +366,9 @@ def save(motion: Motion, path: str | os.PathLike, unit: str | None = None, force
         with os.fdopen(fd, "w", newline="\n") as f:
             f.write(body)
             np.savetxt(f, values, fmt=f"%.{precision}g")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes owner-only files; give the usual mode
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

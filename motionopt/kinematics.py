@@ -8,6 +8,20 @@ from torch import Tensor
 from .rotations import quat_apply, quat_multiply
 
 
+def check_parents(parents: np.ndarray | list[int], num_joints: int) -> list[int]:
+    """The parents array as ints, checked: one per joint, the root first (-1), and every
+    parent before its children (topological order), which FK relies on."""
+    parents = [int(p) for p in parents]
+    if len(parents) != num_joints:
+        raise ValueError(f"{len(parents)} parents for {num_joints} joints")
+    if not parents or parents[0] != -1:
+        raise ValueError("the first joint must be the root, with parent -1")
+    bad = [j for j in range(1, len(parents)) if not 0 <= parents[j] < j]
+    if bad:
+        raise ValueError(f"joint {bad[0]} has parent {parents[bad[0]]}: parents must come before their children")
+    return parents
+
+
 def fk(
     parents: np.ndarray | list[int],
     rotations: Tensor,
@@ -30,11 +44,11 @@ def fk(
     Returns:
         positions (..., J, 3), and world rotations if asked.
     """
-    parents = [int(p) for p in parents]
+    parents = check_parents(parents, rotations.shape[-2])
     local_t = offsets if translations is None else translations
     local_t = local_t.to(rotations.dtype).expand(*rotations.shape[:-1], 3)
     g_rot: list[Tensor] = [rotations[..., 0, :]]
-    g_pos: list[Tensor] = [root]
+    g_pos: list[Tensor] = [root.to(rotations.dtype).expand(*rotations.shape[:-2], 3)]
     for j in range(1, len(parents)):
         p = parents[j]
         g_pos.append(g_pos[p] + quat_apply(g_rot[p], local_t[..., j, :]))

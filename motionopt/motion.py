@@ -152,8 +152,11 @@ class Motion:
         """Drop joints whose names match any shell-style pattern (``"*Thumb*"``), keeping the
         world positions of the remaining joints unchanged.
 
-        A removed joint's local transform is folded into its kept children; when that
-        makes a child's translation vary over time it is stored per frame.
+        Joints whose parent stays keep their data exactly. A joint whose parent is removed
+        takes the removed joints' transforms folded in; when that makes its translation vary
+        over time it is stored per frame and the joint gains position channels, so a saved
+        file keeps the motion. A joint left without children gets an End Site where its
+        first removed child was.
         """
         pats = [patterns] if isinstance(patterns, str) else list(patterns)
         sk = self.skeleton
@@ -163,31 +166,38 @@ class Motion:
         if 0 in drop:
             raise ValueError(f"cannot remove the root joint {sk.names[0]!r}")
         keep = [j for j in range(sk.num_joints) if j not in drop]
-        # Global transforms of every joint, then re-express kept joints relative to their new parent.
-        rot_t = torch.from_numpy(self.rotations)
-        pos, grot = fk(sk.parents, rot_t, torch.from_numpy(self.root), torch.from_numpy(sk.offsets),
-                       None if self.translations is None else torch.from_numpy(self.translations),
-                       return_global_rotations=True)
         sub = sk.subset(keep)
-        new_rot = np.empty((self.num_frames, len(keep), 4))
-        new_tr = np.empty((self.num_frames, len(keep), 3))
-        for new_j, old_j in enumerate(keep):
-            p_new = sub.parents[new_j]
-            if p_new == -1:
-                new_rot[:, new_j] = self.rotations[:, old_j]
-                new_tr[:, new_j] = self.root
-                continue
-            p_old = keep[p_new]
-            inv = R.quat_conjugate(grot[:, p_old])
-            new_rot[:, new_j] = R.quat_multiply(inv, grot[:, old_j]).numpy()
-            new_tr[:, new_j] = R.quat_apply(inv, pos[:, old_j] - pos[:, p_old]).numpy()
-        offsets = new_tr[0].copy()
-        offsets[0] = sk.offsets[0]
-        varying = np.abs(new_tr[:, 1:] - offsets[None, 1:]).max() > 1e-9 if len(keep) > 1 else False
-        sub = sk.subset(keep, offsets=offsets)
-        has_pos = self.translations is not None
-        return Motion(sub, new_rot, self.root.copy(), self.fps,
-                      translations=new_tr if (varying or has_pos) else None, source_unit=self.source_unit)
+        rot = self.rotations[:, keep].copy()
+        tr = self.local_translations()[:, keep].copy()
+        moved = [n for n in range(1, len(keep)) if keep[sub.parents[n]] != sk.parents[keep[n]]]
+        varying: set[int] = set()
+        if moved:
+            # re-express each moved joint relative to its new parent, from world transforms
+            pos, grot = fk(sk.parents, torch.from_numpy(self.rotations), torch.from_numpy(self.root),
+                           torch.from_numpy(sk.offsets), torch.from_numpy(self.local_translations()),
+                           return_global_rotations=True)
+            old = [keep[n] for n in moved]
+            old_parent = [keep[sub.parents[n]] for n in moved]
+            inv = R.quat_conjugate(grot[:, old_parent])
+            rot[:, moved] = R.quat_multiply(inv, grot[:, old]).numpy()
+            tr[:, moved] = R.quat_apply(inv, pos[:, old] - pos[:, old_parent]).numpy()
+            varying = {n for n in moved if np.abs(tr[:, n] - tr[:1, n]).max() > 1e-9}
+        offsets = sk.offsets[keep].copy()
+        offsets[moved] = tr[0, moved]
+        channels = list(sub.channels)
+        for n in varying:
+            if not any("position" in c for c in channels[n]):
+                channels[n] = ("Xposition", "Yposition", "Zposition") + channels[n]
+        end_sites = dict(sub.end_sites)
+        for n, j in enumerate(keep):
+            dropped_children = [c for c in sk.children(j) if c in drop]
+            if n not in end_sites and dropped_children and not sub.children(n):
+                end_sites[n] = sk.offsets[dropped_children[0]].copy()
+        sub = replace(sub, offsets=offsets, channels=tuple(channels), end_sites=end_sites)
+        keep_tr = self.translations is not None or bool(varying)
+        return Motion(sub, rot, self.root.copy(), self.fps, translations=tr if keep_tr else None,
+                      source_unit=self.source_unit,
+                      euler_hint=None if self.euler_hint is None else self.euler_hint[:, keep].copy())
 
     def select_joints(self, names: list[str]) -> "Motion":
         """Keep only the named joints (and the root), as ``remove_joints`` of the rest."""
