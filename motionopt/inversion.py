@@ -175,8 +175,9 @@ def refine(codes: Tensor, energy: Callable[[Tensor], Tensor], iters: int) -> tup
         opt.zero_grad()
         f = energy(param)
         f.backward()
-        if float(f) < best["f"]:
-            best["f"], best["x"] = float(f), param.detach().clone()
+        value = float(f.detach())
+        if value < best["f"]:
+            best["f"], best["x"] = value, param.detach().clone()
         return f
 
     opt.step(closure)

@@ -1,0 +1,225 @@
+"""Tasks solved by inverting the latent prior (MoDi section 4): reconstruction (denoising,
+cleaning), fusion of two motions, completion and in-betweening with the masked encoder,
+semantic editing, interpolation, and variations.
+
+Each task turns the user's motion into normalised features, finds W+ codes (encoder,
+optionally PSO and L-BFGS against the task's fidelity terms, see
+``motionopt.inversion``), edits the codes when the task says so, generates, and puts
+the result back on the user's skeleton, frame rate and unit.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from motionopt.features import RootStart, decode_motion, decode_positions, to_file_motion
+from motionopt.inversion import InversionOptions, InversionResult, blend, invert
+from motionopt.motion import Motion
+from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior
+from priors.latent import LatentPrior
+from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
+
+from .common import Prepared, prepare
+
+
+def load_latent_for(motion: Motion, path: str | None = None) -> LatentPrior:
+    """The named latent checkpoint, or the shipped one whose skeleton matches the motion."""
+    path = path or find_prior_for(motion.skeleton, SHIPPED_LATENT, "train-latent")
+    prior = load_prior(path)
+    if not isinstance(prior, LatentPrior):
+        raise CheckpointError(f"{path} holds a {type(prior).__name__}, not a latent prior; "
+                              "train one with `motionopt train-latent`")
+    check_compatible(prior.spec, motion.skeleton, path)
+    return prior
+
+
+@dataclass(frozen=True)
+class LatentOptions:
+    """Inversion settings of a task (see ``motionopt.inversion.InversionOptions``) and the
+    fidelity term's position sigma (metres): how far a refined joint may sit from the input."""
+
+    refine_iters: int = 0
+    reg_weight: float = 0.05
+    pso_iters: int = 0
+    overlap: int = 16
+    position_sigma: float = 0.05
+    seed: int = 0
+
+    def inversion(self) -> InversionOptions:
+        return InversionOptions(overlap=self.overlap, refine_iters=self.refine_iters, reg_weight=self.reg_weight,
+                                pso_iters=self.pso_iters, seed=self.seed)
+
+
+class FidelityTerm:
+    """Closeness of generated features to a target on weighted frames: mean squared error
+    of the normalised pose features plus squared joint position error over sigma^2
+    (positions from frame 0 of the clip, so root drift counts)."""
+
+    name = "fidelity"
+
+    def __init__(self, prior: LatentPrior, target: Tensor, weights: Tensor, position_sigma: float):
+        self.prior, self.target = prior, target.float()
+        self.weights = weights.float() / weights.float().sum().clamp_min(1e-9)
+        self.sigma = position_sigma
+        self.target_pos = self.positions(self.target).detach()
+
+    def positions(self, x: Tensor) -> Tensor:
+        raw = self.prior.normalizer.denormalize(x)
+        return decode_positions(raw, self.prior.spec, self.prior.skeleton, RootStart())
+
+    def __call__(self, x: Tensor) -> Tensor:
+        p = self.prior.spec.pose_dim
+        feat = (x[:, :p] - self.target[:, :p]).pow(2).mean(-1)
+        pos = (self.positions(x) - self.target_pos).pow(2).sum(-1).mean(-1) / self.sigma ** 2
+        return (self.weights * (feat + pos)).sum()
+
+
+@dataclass
+class LatentTaskResult:
+    """An output motion on the user's skeleton, its model-skeleton version, the inversion
+    report and task figures."""
+
+    motion: Motion
+    model_motion: Motion
+    inversion: InversionResult
+    metrics: dict = field(default_factory=dict)
+
+    def report(self) -> dict:
+        inv = self.inversion
+        return {"metrics": self.metrics, "frames": self.motion.num_frames, "fps": self.motion.fps,
+                "windows": len(inv.starts), "objective_start": inv.objective_start, "objective": inv.objective,
+                "nit": inv.nit, "timings": inv.timings}
+
+
+def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
+            metrics: dict | None = None) -> LatentTaskResult:
+    raw = prior.normalizer.denormalize(x.double())
+    model = decode_motion(raw, prior.spec, prior.skeleton, start, like=original)
+    return LatentTaskResult(to_file_motion(model, original), model, inv, dict(metrics or {}))
+
+
+def _model_frame(prior: LatentPrior, motion: Motion, frame: int) -> int:
+    """A frame index of the file, in the prior's frame rate."""
+    return int(round(frame * prior.spec.fps / motion.fps))
+
+
+def reconstruct(prior: LatentPrior, motion: Motion, options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+    """G(I(m)), optionally refined toward the input: denoising and cleaning (MoDi 4)."""
+    prep = prepare(motion, prior)
+    term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
+    inv = invert(prior, prep.x, terms=[term], options=options.inversion())
+    return _output(prior, inv.x, prep.start, motion, inv)
+
+
+def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: LatentOptions = LatentOptions(),
+         blend_frames: int = 8) -> LatentTaskResult:
+    """A's frames before ``at`` followed by B's frames from ``at`` (file frame numbers, MoDi's
+    fusion), passed through the encoder and generator. B's root continues from A's.
+    Refinement keeps both parts but leaves ``blend_frames`` either side of the seam free."""
+    pa, pb = prepare(a, prior), prepare(b, prior)
+    t = _model_frame(prior, a, at)
+    tb = _model_frame(prior, b, at)
+    if not 0 < t < len(pa.x) or not 0 <= tb < len(pb.x) - 1:
+        raise ValueError(f"--at {at} must fall inside both clips (A has {a.num_frames} frames, B {b.num_frames})")
+    x = torch.cat((pa.x[:t], pb.x[tb:]))
+    weights = torch.ones(len(x))
+    weights[max(0, t - blend_frames):t + blend_frames] = 0.0
+    term = FidelityTerm(prior, x, weights, options.position_sigma)
+    inv = invert(prior, x, terms=[term], options=options.inversion())
+    return _output(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
+
+
+def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: LatentOptions = LatentOptions()
+           ) -> LatentTaskResult:
+    """Fill the frames of ``motion`` where ``seen`` (one bool per file frame) is false with
+    the masked encoder: prefix completion (seen = a prefix) and in-betweening (seen =
+    keyframe ranges). Refinement matches the seen frames only."""
+    seen = np.asarray(seen, bool)
+    if seen.shape != (motion.num_frames,):
+        raise ValueError(f"seen must have one entry per frame ({motion.num_frames}), got {seen.shape}")
+    prep = prepare(motion, prior)
+    idx = np.minimum(np.round(np.arange(len(prep.x)) * motion.fps / prior.spec.fps).astype(int), len(seen) - 1)
+    mask = torch.from_numpy(seen[idx])
+    if not bool(mask.any()):
+        raise ValueError("no frame is seen: give at least one known frame")
+    term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
+    inv = invert(prior, prep.x, mask=mask, terms=[term], options=options.inversion())
+    return _output(prior, inv.x, prep.start, motion, inv)
+
+
+def directions(prior: LatentPrior) -> dict[str, Direction]:
+    """Stored directions, or the computed-attribute ones fitted now when none are stored."""
+    found = directions_of(prior)
+    if not found:
+        found = fit_attribute_directions(prior)
+        prior.metadata["attribute_directions"] = {k: d.to_dict() for k, d in found.items()}
+    return found
+
+
+def _invert_input(prior: LatentPrior, motion: Motion, options: LatentOptions) -> tuple[Prepared, InversionResult]:
+    prep = prepare(motion, prior)
+    term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
+    return prep, invert(prior, prep.x, terms=[term] if options.refine_iters or options.pso_iters else None,
+                        options=options.inversion())
+
+
+@torch.no_grad()
+def _generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_frames: int) -> Tensor:
+    return blend(prior.generate(codes), inv.starts, max(n_frames, inv.starts[-1] + prior.window))[:n_frames]
+
+
+def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: float,
+                options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+    """Move the motion's codes ``strength`` standard deviations along an attribute's
+    direction in W (MoDi 4.1) and generate."""
+    dirs = directions(prior)
+    if attribute not in dirs:
+        raise ValueError(f"unknown attribute {attribute!r}; this prior knows: {', '.join(sorted(dirs))}")
+    t0 = time.perf_counter()
+    prep, inv = _invert_input(prior, motion, options)
+    codes = edit_codes(inv.wplus, dirs[attribute], strength)
+    x = _generate_clip(prior, codes, inv, len(prep.x))
+    inv.timings["total"] = time.perf_counter() - t0
+    return _output(prior, x, prep.start, motion, inv, {"attribute": attribute, "strength": strength,
+                                                      "classifier_accuracy": dirs[attribute].accuracy})
+
+
+def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: LatentOptions = LatentOptions()
+                ) -> list[LatentTaskResult]:
+    """``steps`` motions whose codes go linearly from A's to B's (both cut to the shorter
+    clip); the first is G(I(A)), the last G(I(B)); roots start where A starts."""
+    if steps < 2:
+        raise ValueError("--steps must be at least 2 (the two ends)")
+    pa, pb = prepare(a, prior), prepare(b, prior)
+    n = min(len(pa.x), len(pb.x))
+    inv_a = invert(prior, pa.x[:n], options=options.inversion())
+    inv_b = invert(prior, pb.x[:n], options=options.inversion())
+    out = []
+    for i in range(steps):
+        alpha = i / (steps - 1)
+        codes = torch.lerp(inv_a.wplus, inv_b.wplus, alpha)
+        x = _generate_clip(prior, codes, inv_a, n)
+        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha}))
+    return out
+
+
+def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int = 0,
+         options: LatentOptions = LatentOptions()) -> list[LatentTaskResult]:
+    """``count`` variations: the motion's codes plus Gaussian offsets of ``sigma`` standard
+    deviations along every principal direction of W (MoDi's crowds, sigma 0.1-0.8), one
+    offset per variation shared by all windows and layers."""
+    if count < 1:
+        raise ValueError("--count must be at least 1")
+    prep, inv = _invert_input(prior, motion, options)
+    g = torch.Generator().manual_seed(seed)
+    out = []
+    for i in range(count):
+        eps = torch.randn(prior.config.w_dim, generator=g) * sigma
+        delta = (eps * prior.w_scales) @ prior.w_components
+        x = _generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
+        out.append(_output(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed}))
+    return out
