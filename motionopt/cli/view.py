@@ -54,7 +54,8 @@ def _add_frame_range(p: argparse.ArgumentParser) -> None:
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source-fps", type=float, default=None, help="override the frame rate written in the file")
-    p.add_argument("--unit", default="auto", help="length unit of the file: cm, m, mm, in or auto")
+    p.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
+                   help="length unit of the file (default: guessed from the skeleton's size)")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
 
 
