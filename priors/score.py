@@ -47,7 +47,7 @@ def score_motion(prior, motion: Motion, window_seconds: float = 1.0, n_worst: in
         raise ValueError("the clip is too short to score: it needs at least two frames at the prior's rate")
     nll = prior.nll(x[1:], context=x[:1]).double().numpy()
     per = np.concatenate([[nll[0]], nll])
-    w = max(1, int(round(window_seconds * prior.spec.fps)))
+    w = min(len(per), max(1, int(round(window_seconds * prior.spec.fps))))  # a short clip is one window
     scale = motion.fps / prior.spec.fps
     sums = np.convolve(per, np.ones(w) / w, mode="valid")
     worst: list[tuple[int, int, float]] = []

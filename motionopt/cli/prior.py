@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import sys
 from pathlib import Path
 
 from . import UserError, add_common
@@ -23,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--fps", type=float, default=30.0, help="frame rate the prior models (default 30)")
     p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
     p.add_argument("--epochs", type=int, default=40)
+    p.add_argument("--window", type=int, default=96, help="frames per training window (default 96; "
+                   "every clip shorter than this is left out)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
@@ -56,13 +57,27 @@ def cmd_train(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"{len(ds.train)} training clips ({ds.num_train_frames} frames at {ds.spec.fps:g} fps), "
               f"{len(ds.val)} held out; prepared in {ds.seconds_to_build:.1f} s")
-    cfg = TrainConfig(epochs=args.epochs, seed=args.seed, max_minutes=args.max_minutes, threads=args.threads)
-    meta = {"training_command": "motionopt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-            "data": str(Path(args.data)), "licence": args.licence}
+    cfg = TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
+                      threads=args.threads)
+    meta = {"training_command": train_command(args), "data": str(Path(args.data)), "licence": args.licence}
     train_prior(ds, args.out, cfg, metadata=meta, progress=not args.quiet, force=args.force)
     if not args.quiet:
         print(f"wrote {args.out}")
     return 0
+
+
+def train_command(args: argparse.Namespace) -> str:
+    """The full train-prior command line, defaults included, that reproduces a training."""
+    words = ["motionopt", "train-prior", "--data", args.data, "--out", args.out, "--fps", f"{args.fps:g}",
+             "--unit", args.unit, "--epochs", str(args.epochs), "--window", str(args.window), "--seed", str(args.seed),
+             "--licence", args.licence]
+    for flag, values in (("--val", args.val), ("--include", args.include)):
+        if values is not None:
+            words += [flag, *values]
+    for flag, value in (("--max-minutes", args.max_minutes), ("--threads", args.threads)):
+        if value is not None:
+            words += [flag, f"{value:g}"]
+    return " ".join(shlex.quote(str(w)) for w in words)
 
 
 def cmd_info(args: argparse.Namespace) -> int:

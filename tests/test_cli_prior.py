@@ -1,0 +1,142 @@
+"""The prior commands: score, prior-info, train-prior, run as a user runs them."""
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from motionopt import bvh
+from motionopt.cli import main
+from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
+from priors.score import score_motion
+
+from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
+from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory):
+    path = tmp_path_factory.mktemp("ckpt") / "tiny.pt"
+    save_prior(tiny_prior(), path)
+    return path
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def score_json(capsys, clip, ckpt, *extra) -> dict:
+    rc, out, err = run(capsys, "score", clip, "--prior", ckpt, "--json", *extra)
+    assert rc == 0, err
+    return json.loads(out)
+
+
+@pytest.mark.parametrize("fps", [120, 60])
+def test_score_prints_nll_per_frame_for_any_frame_rate(capsys, ckpt, fps):
+    clip = cmu_clip(fps)
+    report = score_json(capsys, clip, ckpt)
+    motion = bvh.load(clip)
+    assert report["nll_per_frame"] == pytest.approx(score_motion(tiny_prior(), motion).nll_per_frame)
+    assert report["frames"] == motion.num_frames and report["prior_fps"] == 30.0
+    ranges = sorted((w["start"], w["stop"]) for w in report["worst"])
+    assert 1 <= len(ranges) <= 3
+    for (a, b), nxt in zip(ranges, ranges[1:] + [(motion.num_frames, None)]):
+        assert 0 <= a and b <= nxt[0]  # in the clip and not overlapping
+        assert b - a == pytest.approx(fps, abs=1)  # one second, in the file's own frame numbers
+    means = [w["nll_per_frame"] for w in report["worst"]]
+    assert means == sorted(means, reverse=True) and means[0] > report["nll_per_frame"]
+
+
+def test_score_resamples_to_the_prior_rate(capsys, ckpt, tmp_path):
+    clip = cmu_clip(120)
+    at30 = tmp_path / "at30.bvh"
+    bvh.save(bvh.load(clip).resample(30.0), at30)
+    a, b = score_json(capsys, clip, ckpt), score_json(capsys, at30, ckpt)
+    assert a["nll_per_frame"] == pytest.approx(b["nll_per_frame"], abs=1e-3 * abs(b["nll_per_frame"]))
+    assert [w["start"] for w in a["worst"]] == [4 * w["start"] for w in b["worst"]]
+
+
+def test_score_frame_rate_override_changes_what_the_prior_sees(capsys, ckpt):
+    clip = cmu_clip(60)
+    normal, fast = score_json(capsys, clip, ckpt), score_json(capsys, clip, ckpt, "--fps", "120")
+    assert fast["frames"] == normal["frames"]
+    assert fast["worst"][0]["stop"] - fast["worst"][0]["start"] == 120
+    assert fast["nll_per_frame"] != pytest.approx(normal["nll_per_frame"], rel=1e-3)
+
+
+def test_score_of_a_clip_shorter_than_a_window(capsys, ckpt, tmp_path):
+    short = tmp_path / "short.bvh"
+    bvh.save(bvh.load(cmu_clips()[0])[:12], short)
+    report = score_json(capsys, short, ckpt)
+    assert len(report["worst"]) == 1
+    worst = report["worst"][0]
+    assert (worst["start"], worst["stop"]) == (0, 12)
+    per = score_motion(tiny_prior(), bvh.load(short)).per_frame
+    assert worst["nll_per_frame"] == pytest.approx(per.mean())
+
+
+def test_score_text_output(capsys, ckpt):
+    rc, out, _ = run(capsys, "score", cmu_clips()[0], "--prior", ckpt)
+    assert rc == 0 and "nats per frame" in out and "  frames 0:120" in out
+
+
+def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_path):
+    legless = tmp_path / "legless.bvh"
+    bvh.save(bvh.load(cmu_clips()[0]).remove_joints(["lThigh", "lShin", "lFoot"]), legless)
+    rc, out, err = run(capsys, "score", legless, "--prior", ckpt)
+    assert rc == 1 and out == ""
+    assert "lacks lThigh, lShin, lFoot" in err and "train-prior" in err and len(err.splitlines()) == 1
+
+
+def test_score_picks_the_shipped_prior_of_the_skeleton(capsys):
+    if not (CHECKPOINT_DIR / "cmu-ccnet.pt").exists():
+        pytest.skip("shipped CMU prior not built")
+    rc, out, err = run(capsys, "score", cmu_clips()[0], "--json")
+    assert rc == 0, err
+    assert json.loads(out)["prior_fps"] == read_checkpoint(CHECKPOINT_DIR / "cmu-ccnet.pt")["spec"]["fps"]
+
+
+def test_prior_info_prints_licence_and_metadata(capsys, ckpt):
+    rc, out, _ = run(capsys, "prior-info", ckpt)
+    assert rc == 0
+    assert "licence: test licence" in out and "feature_version: 1" in out
+    rc, out, _ = run(capsys, "prior-info", ckpt, "--json")
+    info = json.loads(out)
+    assert info["licence"] == "test licence"
+    assert info["parameters"] == sum(p.numel() for p in tiny_prior().state_dict().values())
+    assert info["joints"] == list(tiny_prior().spec.joints)
+
+
+def test_prior_info_refuses_an_old_feature_version(capsys, ckpt, tmp_path):
+    data = read_checkpoint(ckpt)
+    data["spec"]["version"] = 0
+    old = tmp_path / "old.pt"
+    torch.save(data, old)
+    rc, out, err = run(capsys, "prior-info", old)
+    assert rc == 1 and "feature version 0" in err and "train-prior" in err
+
+
+def test_shipped_locomotion_prior_says_it_is_non_commercial(capsys):
+    path = CHECKPOINT_DIR / "bandai-locomotion-ccnet.pt"
+    if not path.exists():
+        pytest.skip("shipped Bandai prior not built")
+    rc, out, _ = run(capsys, "prior-info", path)
+    assert rc == 0 and "NON-COMMERCIAL" in out and "Bandai Namco Research" in out
+
+
+def test_train_prior_command_writes_a_usable_checkpoint(capsys, tmp_path):
+    clips = cmu_clips()
+    out = tmp_path / "cli.pt"
+    rc, _, err = run(capsys, "train-prior", "--data", DATA, "--include", *[c.name for c in clips], "--val",
+                     clips[-1].name, "--out", out, "--epochs", "1", "--window", "32", "--licence", "CC0 test", "-q")
+    assert rc == 0, err
+    rc, text, _ = run(capsys, "prior-info", out, "--json")
+    info = json.loads(text)
+    assert info["licence"] == "CC0 test" and info["epochs"] == 1
+    assert info["validation_clips"] == [clips[-1].name] and info["train_clips"] == len(clips) - 1
+    assert info["training_command"].startswith("motionopt train-prior --data ")
+    assert "--epochs 1 " in info["training_command"] and "--licence 'CC0 test'" in info["training_command"]
+    assert score_json(capsys, clips[0], out)["frames"] == bvh.load(clips[0]).num_frames

@@ -1,0 +1,180 @@
+"""The causal-convolution prior: protocol, causality, gradients, sampling, checkpoints."""
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from priors.checkpoint import CheckpointError, check_compatible, load_prior, read_checkpoint, save_prior
+from priors.protocol import MotionPrior
+from priors.score import features_of
+
+from priorkit import cmu_clips, features, fresh_prior, tiny_prior
+from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
+
+
+@pytest.fixture(scope="module")
+def prior():
+    return tiny_prior()
+
+
+@pytest.fixture(scope="module")
+def x(prior):
+    """40 frames of a real clip, normalised for the prior."""
+    return features(cmu_clips()[0])[:40]
+
+
+def changed(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Per-frame: did the NLL change?"""
+    return (a - b).abs() > 1e-6 * (1 + a.abs())
+
+
+def test_conforms_to_protocol(prior, tmp_path):
+    assert isinstance(prior, MotionPrior)
+    save_prior(prior, tmp_path / "p.pt")
+    assert isinstance(load_prior(tmp_path / "p.pt"), MotionPrior)
+
+
+def test_nll_shapes_and_batching(prior, x):
+    nll = prior.nll(x[5:], context=x[:5])
+    assert nll.shape == (35,) and torch.isfinite(nll).all()
+    batch = torch.stack((x, x.flip(0)))
+    both = prior.nll(batch[:, 5:], context=batch[:, :5])
+    assert torch.allclose(both[0], nll, atol=1e-5)
+    assert torch.allclose(both[1], prior.nll(x.flip(0)[5:], context=x.flip(0)[:5]), atol=1e-5)
+    # one context shared by a batch of continuations
+    shared = prior.nll(batch[:, 5:], context=x[:5])
+    assert torch.allclose(shared[0], nll, atol=1e-5)
+
+
+@pytest.mark.parametrize("n_context", [0, 6])
+def test_frame_t_does_not_change_earlier_frames(prior, x, n_context):
+    ctx = x[:n_context] if n_context else None
+    seq = x[n_context:]
+    t = 12
+    base = prior.nll(seq, context=ctx)
+    edited = seq.clone()
+    edited[t] += 0.5
+    after = prior.nll(edited, context=ctx)
+    ch = changed(base, after)
+    assert not ch[:t].any()
+    assert ch[t] and ch[t + 1:t + 4].all()  # the frame itself and the frames it predicts
+
+
+def test_receptive_field_is_exact(prior, x):
+    rf = prior.receptive_field
+    assert rf == 8  # 1 + (2 - 1) * (1 + 2 + 4)
+    s = 3
+    edited = x.clone()
+    edited[s] += 0.5
+    ch = changed(prior.nll(x), prior.nll(edited))
+    assert ch[s + rf] and not ch[s + rf + 1:].any()
+
+
+def test_context_continues_the_sequence(prior, x):
+    """With at least a receptive field of context, scoring the rest equals scoring the whole."""
+    c = prior.receptive_field
+    assert torch.allclose(prior.nll(x[c:], context=x[:c]), prior.nll(x)[c:], atol=1e-5)
+    edited = x[:c].clone()
+    edited[-1] += 0.5
+    assert changed(prior.nll(x[c:], context=x[:c]), prior.nll(x[c:], context=edited))[0]
+
+
+def test_noise_perturbs_history_only(prior, x):
+    assert torch.equal(prior.nll(x, noise=torch.zeros_like(x)), prior.nll(x))
+    d = torch.zeros_like(x)
+    d[10] = 0.3
+    ch = changed(prior.nll(x), prior.nll(x, noise=d))
+    assert not ch[:11].any() and ch[11]
+
+
+def test_contacts_come_from_the_same_pass(prior, x):
+    nll, contacts = prior.nll_and_contacts(x)
+    assert torch.equal(nll, prior.nll(x))
+    assert torch.equal(contacts, prior.predict_contacts(x))
+    assert contacts.shape == (len(x), prior.spec.num_contacts)
+    assert ((contacts >= 0) & (contacts <= 1)).all()
+
+
+def test_nll_gradients_are_exact_in_float64(prior, x):
+    p64 = copy.deepcopy(prior).double()
+    xs, ctx = x[3:9].double().requires_grad_(), x[:3].double().requires_grad_()
+    assert torch.autograd.gradcheck(lambda a, c: p64.nll(a, context=c).sum(), (xs, ctx), eps=1e-6, atol=1e-5,
+                                     fast_mode=True)
+
+
+def test_nll_gradient_flows_to_every_pose_dimension(prior, x):
+    xs = x.clone().requires_grad_()
+    prior.nll(xs).sum().backward()
+    g = xs.grad
+    assert torch.isfinite(g).all()
+    p = prior.spec.pose_dim
+    assert (g[:, :p].abs().sum(0) > 0).all()
+    assert (g[:-1, p:].abs().sum() > 0)  # contact labels of earlier frames condition later ones
+
+
+def test_training_lowers_the_nll_of_held_out_motion(prior):
+    """A few steps already beat the untrained prior (which predicts "no change")."""
+    fresh = fresh_prior().eval()
+    val = features(cmu_clips()[-1])
+    with torch.no_grad():
+        assert prior.nll(val).mean() < fresh.nll(val).mean() - 10
+
+
+def test_sampling_is_seeded_and_follows_the_predicted_mean(prior, x):
+    ctx = x[:10]
+    a = prior.sample(ctx, 20, generator=torch.Generator().manual_seed(1))
+    b = prior.sample(ctx, 20, generator=torch.Generator().manual_seed(1))
+    c = prior.sample(ctx, 20, generator=torch.Generator().manual_seed(2))
+    assert a.shape == (20, x.shape[-1]) and torch.isfinite(a).all()
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    # temperature 0: the first new frame is the predicted mean, made a valid rotation set
+    first = prior.sample(ctx, 1, temperature=0.0)[0]
+    mean, _, logits = prior.gaussian(x[10:11], context=ctx)
+    expected = prior.project(torch.cat((mean[0], (logits[0] > 0).float())))
+    assert torch.allclose(first, expected, atol=1e-5)
+    # batched contexts roll out independently
+    two = prior.sample(torch.stack((ctx, ctx)), 5, temperature=0.0)
+    assert two.shape == (2, 5, x.shape[-1]) and torch.allclose(two[0], two[1])
+
+
+def test_checkpoint_round_trip_gives_identical_nll(prior, x, tmp_path):
+    path = tmp_path / "tiny.pt"
+    save_prior(prior, path)
+    loaded = load_prior(path)
+    assert torch.equal(loaded.nll(x), prior.nll(x))
+    assert loaded.metadata == prior.metadata
+    assert loaded.spec == prior.spec and loaded.config == prior.config
+    assert loaded.skeleton.same_hierarchy(prior.skeleton)
+    assert torch.allclose(torch.as_tensor(loaded.skeleton.offsets), torch.as_tensor(prior.skeleton.offsets))
+    assert not any(p.requires_grad for p in loaded.parameters()) and not loaded.training
+
+
+def test_wrong_feature_version_is_refused(prior, tmp_path):
+    path = tmp_path / "old.pt"
+    save_prior(prior, path)
+    data = read_checkpoint(path)
+    data["spec"]["version"] = 0
+    torch.save(data, path)
+    with pytest.raises(CheckpointError, match="feature version 0.*train-prior"):
+        load_prior(path)
+
+
+@pytest.mark.parametrize("content", [b"not a checkpoint", None])
+def test_unreadable_or_missing_checkpoint_is_refused(tmp_path, content):
+    path = tmp_path / "bad.pt"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(CheckpointError, match="not a motionopt checkpoint|does not exist"):
+        load_prior(path)
+
+
+def test_motion_of_another_skeleton_is_refused(prior):
+    from motionopt import bvh
+
+    legless = bvh.load(cmu_clips()[0]).remove_joints(["lThigh", "lShin", "lFoot"])
+    with pytest.raises(CheckpointError, match="lacks lThigh, lShin, lFoot.*train-prior"):
+        check_compatible(prior.spec, legless.skeleton)
+    with pytest.raises(CheckpointError, match="lacks"):
+        features_of(prior, legless)

@@ -1,0 +1,67 @@
+"""Training the prior: a tiny real run, its log and checkpoint, and resuming it."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from priors.checkpoint import load_prior, read_checkpoint
+from priors.train import TrainConfig, log_path, state_path, train_prior, validation_nll
+
+from priorkit import TINY, fresh_prior, tiny_dataset
+from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
+
+
+def config(**kw) -> TrainConfig:
+    return TrainConfig(**{"epochs": 3, "window": 16, "stride": 1, "batch_size": 4, "lr": 3e-3, "seed": 3,
+                          "model": TINY, **kw})
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """Three epochs in one go."""
+    out = tmp_path_factory.mktemp("run") / "tiny.pt"
+    train_prior(tiny_dataset(), out, config(), metadata={"licence": "test licence"}, progress=False)
+    return out
+
+
+def test_training_writes_checkpoint_state_and_log(trained):
+    assert trained.exists() and state_path(trained).exists()
+    records = [json.loads(line) for line in log_path(trained).read_text().splitlines()]
+    assert [r["epoch"] for r in records] == [1, 2, 3]
+    assert all(math.isfinite(r["val_nll_per_frame"]) and math.isfinite(r["train_loss"]) for r in records)
+    meta = load_prior(trained).metadata
+    assert meta["licence"] == "test licence" and meta["epochs_done"] == 3
+    assert meta["history"] == records
+    ds = tiny_dataset()
+    assert meta["validation_clips"] == sorted(ds.val) and meta["train_clips"] == sorted(ds.train)
+    assert not set(meta["validation_clips"]) & set(meta["train_clips"])
+    assert meta["fps"] == 30.0 and meta["train_config"]["seed"] == 3
+
+
+def test_training_lowers_validation_nll(trained):
+    c = config()
+    val = tiny_dataset().windows("val", c.window, c.window // 2)
+    before = validation_nll(fresh_prior(), val)
+    after = read_checkpoint(trained)["metadata"]["history"][-1]["val_nll_per_frame"]
+    assert after < before - 30
+    assert after == pytest.approx(validation_nll(load_prior(trained), val), rel=1e-5)
+
+
+def test_interrupted_training_resumes_to_the_same_weights(trained, tmp_path):
+    out = tmp_path / "resumed.pt"
+    first = train_prior(tiny_dataset(), out, config(max_minutes=1e-9), progress=False)
+    assert read_checkpoint(out)["metadata"]["epochs_done"] == 1 and first is not None
+    train_prior(tiny_dataset(), out, config(), progress=False)
+    a, b = read_checkpoint(trained)["state_dict"], read_checkpoint(out)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert [json.loads(line)["epoch"] for line in log_path(out).read_text().splitlines()] == [1, 2, 3]
+
+
+def test_existing_checkpoint_without_state_is_not_overwritten(trained, tmp_path):
+    out = tmp_path / "done.pt"
+    out.write_bytes(trained.read_bytes())
+    with pytest.raises(FileExistsError, match="--force"):
+        train_prior(tiny_dataset(), out, config(), progress=False)
