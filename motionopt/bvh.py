@@ -226,6 +226,37 @@ def _is_float(s: str) -> bool:
         return False
 
 
+def frame_rate(frame_time: float) -> float:
+    """Frames per second for a header's frame time.
+
+    Headers round the frame time (``0.0333333`` for 30 fps). When the value has five or
+    more significant digits and a rate with at most three decimals gives that value to
+    the digits written, that rate is returned: 30.0 rather than 30.00003, so that
+    resampling lands on whole frames. Short values (``0.04``, ``0.03``) are taken as exact.
+    """
+    text = repr(float(frame_time))  # the shortest text that reads back as this number
+    mantissa, _, exponent = text.lower().partition("e")
+    raw = 1.0 / frame_time
+    if len(mantissa.replace("-", "").replace(".", "").lstrip("0")) < 5:
+        return raw
+    half_unit = 0.5 * 10.0 ** -(len(mantissa.partition(".")[2]) - int(exponent or 0))
+    for places in range(4):
+        fps = round(raw, places)
+        if fps > 0 and abs(1.0 / fps - frame_time) <= half_unit * (1 + 1e-6):
+            return fps
+    return raw
+
+
+def frame_time_text(fps: float) -> str:
+    """The shortest frame time text (at least six significant digits, as most files
+    write it) that ``frame_rate`` reads back as ``fps``."""
+    for digits in range(6, 18):
+        text = f"{1.0 / fps:.{digits}g}"
+        if frame_rate(float(text)) == fps:
+            return text
+    return repr(1.0 / fps)
+
+
 def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) -> Motion:
     """Read a BVH file into a Motion in metres.
 
@@ -266,7 +297,7 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
         skeleton.scaled(scale),
         rotations,
         root * scale,
-        fps=float(fps) if fps else 1.0 / frame_time,
+        fps=float(fps) if fps else frame_rate(frame_time),
         translations=translations * scale if has_positions else None,
         source_unit=unit,
         euler_hint=hint,
@@ -359,7 +390,7 @@ def save(motion: Motion, path: str | os.PathLike, unit: str | None = None, force
 
     write_joint(0, 0)
     values = motion_to_channels(motion, unit)
-    lines += ["MOTION", f"Frames: {motion.num_frames}", f"Frame Time: {1.0 / motion.fps:.10g}"]
+    lines += ["MOTION", f"Frames: {motion.num_frames}", f"Frame Time: {frame_time_text(motion.fps)}"]
     body = "\n".join(lines) + "\n"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     try:

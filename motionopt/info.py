@@ -17,6 +17,7 @@ class ClipInfo:
     fps: float
     duration: float
     unit: str
+    root_joint: str
     root_path_length: float
     bbox_min: tuple[float, float, float]
     bbox_max: tuple[float, float, float]
@@ -29,10 +30,13 @@ class ClipInfo:
 
 
 def describe(motion: Motion) -> ClipInfo:
-    """Summary of ``motion``: the root path length is the distance its root travels on the
-    ground plane (x, z); the bounding box holds every joint's world position over the clip."""
+    """Summary of ``motion``: the root path length is the distance the body's root travels on
+    the ground plane (x, z), where a top joint with a single child (as Bandai's static
+    ``joint_Root``) does not count as the body's root; the bounding box holds every joint's
+    world position over the clip."""
     pos = motion.positions()
-    root_xz = motion.root[:, [0, 2]]
+    body = motion.reroot()
+    root_xz = body.root[:, [0, 2]]
     path = float(np.linalg.norm(np.diff(root_xz, axis=0), axis=1).sum())
     flat = pos.reshape(-1, 3)
     return ClipInfo(
@@ -41,6 +45,7 @@ def describe(motion: Motion) -> ClipInfo:
         fps=float(motion.fps),
         duration=float(motion.duration),
         unit=motion.source_unit,
+        root_joint=body.skeleton.names[0],
         root_path_length=path,
         bbox_min=tuple(float(v) for v in flat.min(0)),
         bbox_max=tuple(float(v) for v in flat.max(0)),

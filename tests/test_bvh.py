@@ -303,3 +303,19 @@ def test_guess_unit_from_skeleton_size():
     for height, unit in ((1.7, "m"), (170.0, "cm"), (1700.0, "mm")):
         offsets = np.array([[0, 0, 0], [0, height / 2, 0], [0, height / 2, 0]])
         assert bvh.guess_unit(offsets, parents) == unit
+
+
+@pytest.mark.parametrize("text,fps", [("0.0333333", 30.0), ("0.00833333", 120.0), ("0.0166667", 60.0),
+                                      ("0.0333667", 29.97), ("0.04", 25.0), ("0.03", 100 / 3),
+                                      ("0.0123456789", 1 / 0.0123456789)])
+def test_rounded_frame_times_give_the_intended_rate_and_write_back_the_same(text, fps):
+    assert bvh.frame_rate(float(text)) == pytest.approx(fps, rel=1e-12)
+    assert bvh.frame_time_text(bvh.frame_rate(float(text))) == text
+
+
+def test_frame_rate_override_and_header_rate(tmp_path):
+    path = write(tmp_path, bvh_text(frame_values(), frame_time="0.0333333"))
+    assert bvh.load(path).fps == 30.0  # exactly: resampling lands on whole frames
+    assert bvh.load(path, fps=60.0).fps == 60.0
+    out = bvh.save(bvh.load(path, fps=60.0), tmp_path / "out.bvh")
+    assert "Frame Time: 0.0166667\n" in out.read_text()

@@ -101,7 +101,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         f"frame rate: {info.fps:.6g} fps (frame time {1 / info.fps:.6g} s)",
         f"duration: {info.duration:.3f} s",
         f"unit: {info.unit}" + (" (guessed from the skeleton's size; set it with --unit)" if args.unit == "auto" else ""),
-        f"root path length: {info.root_path_length:.3f} m on the ground plane",
+        f"root path length: {info.root_path_length:.3f} m on the ground plane ({info.root_joint})",
         "bounding box: " + ", ".join(f"{a} {lo[i]:.3f} to {hi[i]:.3f}" for i, a in enumerate("xyz")) + " m",
     ]
     print("\n".join(lines))

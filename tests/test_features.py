@@ -1,0 +1,132 @@
+"""The prior feature representation: exact decoding over whole clips, gradients, contact labels."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from motionopt import bvh
+from motionopt.features import (FeatureSpec, contact_labels, decode, decode_positions, default_spec, encode,
+                                estimate_ground, to_model_motion)
+
+DATA = Path(__file__).parent / "data"
+MARTIAL = DATA / "cmu-martial-03-step.bvh"
+BANDAI = DATA / "bandai-walk-normal-001.bvh"
+SHARED_CMU = Path(__file__).parent.parent.parent / "shared" / "data" / "cmu" / "martial" / "03.bvh"
+
+
+def encoded(path: Path):
+    motion = bvh.load(path)
+    spec = default_spec(motion.skeleton)
+    model = to_model_motion(motion, spec)
+    x, start = encode(model, spec)
+    return motion, spec, model, x, start
+
+
+def test_default_spec_on_cmu_drops_fingers_and_eyes():
+    spec = default_spec(bvh.load(MARTIAL).skeleton)
+    assert len(spec.joints) == 21 and spec.joints[0] == "hip"
+    assert not any("Thumb" in n or "Eye" in n for n in spec.joints)
+    assert spec.contact_joints == ("rFoot", "lFoot") and spec.fps == 30.0
+    assert spec.dim == 10 + 6 * 20 + 2
+    assert FeatureSpec.from_dict(spec.to_dict()) == spec
+
+
+@pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_decode_reproduces_world_positions_of_a_whole_clip(path, dtype):
+    motion, spec, model, x, start = encoded(path)
+    assert x.shape == (model.num_frames, spec.dim)
+    pos = decode_positions(x.to(dtype), spec, model.skeleton, start)
+    assert pos.dtype == dtype
+    assert np.abs(pos.double().numpy() - model.positions()).max() < 1e-3  # metres, every frame: no drift
+    if dtype == torch.float64:
+        # and they are the file's own joint positions, at every 4th (120 -> 30 fps) or every frame
+        step = round(motion.fps / spec.fps)
+        idx = [motion.skeleton.index(n) for n in spec.joints]
+        ref = motion.positions()[::step][:model.num_frames, idx]
+        np.testing.assert_allclose(pos.numpy(), ref, atol=1e-9)
+
+
+@pytest.mark.skipif(not SHARED_CMU.exists(), reason="../shared/data is absent")
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_decode_of_a_whole_shared_cmu_clip_stays_within_a_millimetre(dtype):
+    _, spec, model, x, start = encoded(SHARED_CMU)
+    assert model.num_frames > 600  # about 23 seconds at 30 fps
+    pos = decode_positions(x.to(dtype), spec, model.skeleton, start).double().numpy()
+    err = np.abs(pos - model.positions()).max(axis=(1, 2))
+    assert err.max() < 1e-3 and err[-1] < 1e-3
+
+
+def test_decode_is_differentiable_and_causal():
+    _, spec, model, x, start = encoded(MARTIAL)
+    base = x[:5].clone()
+    cols = list(range(0, 16))  # root features and the first joint's rotation
+
+    def positions(v):
+        full = torch.cat((v, base[:, 16:]), dim=-1)
+        return decode_positions(full, spec, model.skeleton, start)
+
+    assert torch.autograd.gradcheck(positions, (base[:, cols].clone().requires_grad_(True),))
+    v = x[:8].clone().requires_grad_(True)
+    pos = decode_positions(v, spec, model.skeleton, start)
+    pos[3].sum().backward()
+    assert v.grad[:4].abs().sum() > 0 and torch.all(v.grad[4:] == 0)  # frame 3 depends on frames 0..3 only
+
+
+def test_decode_batched_equals_unbatched():
+    _, spec, model, x, start = encoded(MARTIAL)
+    batch = torch.stack((x[:20], x[20:40], x[40:60]))
+    rot, root = decode(batch, spec, start)
+    for b in range(3):
+        r, p = decode(batch[b], spec, start)
+        torch.testing.assert_close(rot[b], r, rtol=0, atol=1e-12)
+        torch.testing.assert_close(root[b], p, rtol=0, atol=1e-12)
+
+
+def test_encode_wants_the_prior_joints():
+    motion = bvh.load(MARTIAL)
+    with pytest.raises(ValueError, match="to_model_motion"):
+        encode(motion, default_spec(motion.skeleton))
+
+
+def test_bandai_model_motion_is_rooted_at_the_hips_at_30_fps():
+    motion, spec, model, _, _ = encoded(BANDAI)
+    assert spec.joints[0] == "Hips" and model.skeleton.names == spec.joints
+    assert model.translations is None and model.fps == 30.0 and model.num_frames == motion.num_frames
+
+
+def test_contact_labels_follow_the_step():
+    motion, spec, model, x, _ = encoded(MARTIAL)
+    c = x[:, spec.slices()["contacts"]].numpy()
+    assert set(np.unique(c)) <= {0.0, 1.0}
+    right, left = c[:, 0], c[:, 1]
+    # the excerpt's left foot steps during its first 0.7 s: it leaves the ground, the right foot stays
+    pos = model.positions()
+    lifted = pos[:, spec.joints.index("lFoot"), 1] - pos[:, spec.joints.index("lFoot"), 1].min() > 0.1
+    assert lifted.sum() >= 5
+    assert np.all(left[lifted] == 0)
+    assert right[lifted].mean() > 0.9
+
+
+def test_contact_thresholds_are_parameters_that_change_labels():
+    _, spec, model, _, _ = encoded(MARTIAL)
+    pos = model.positions()
+    idx = [spec.joints.index(n) for n in spec.contact_joints]
+    ground = estimate_ground(pos, idx)
+
+    def labels(height, speed):
+        return contact_labels(pos, idx, model.fps, ground, height, speed)
+
+    default = labels(spec.contact_height, spec.contact_speed)
+    assert labels(1e-4, spec.contact_speed).sum() < default.sum()  # stricter height
+    assert labels(spec.contact_height, 0.05).sum() < default.sum()  # stricter speed
+    assert labels(10.0, 100.0).all()  # anything goes
+    assert not labels(-1.0, spec.contact_speed).any()
+    # the spec carries the thresholds into the features
+    strict = replace(spec, contact_height=0.005, contact_speed=0.1)
+    x_strict, _ = encode(model, strict)
+    assert x_strict[:, strict.slices()["contacts"]].sum() < default.sum()
