@@ -1,0 +1,294 @@
+"""Benchmark of the shipped autoregressive priors on their held-out clips.
+
+For each checkpoint (default: the shipped ones), on the validation clips named in its
+metadata, loaded from the data folder named there:
+
+1. Likelihood: mean per-frame NLL (nats, pose dimensions of the normalised features,
+   every frame from the third on) of the prior, and of a constant-velocity Gaussian
+   baseline: a diagonal Gaussian on x_t - (2 x_{t-1} - x_{t-2}) fitted on the same
+   training clips in the same feature space.
+2. Discrimination: mean per-frame NLL of the clean clips, of the same clips with
+   joint-position noise of 1 cm RMS, and of the same clips played at double speed.
+   The noise is made in the motion's own degrees of freedom: every local rotation
+   (the root's included) is turned by a random axis-angle drawn from N(0, s^2 I), with s
+   calibrated per clip so that joint positions move 1 cm RMS (3D distance, all modelled
+   joints and frames); the root path is left alone. This is gentler than independent
+   1 cm noise on each joint (which would also bend short bones by degrees), so it is
+   the harder test. Double speed keeps every second frame at the same frame rate.
+3. Rollouts: from 1 s of held-out context, sample 60 s (several seeds per clip); per
+   5 s window, mean joint speed (world positions, all modelled joints) over the mean
+   joint speed of the held-out clips; foot skating of the rollouts and of the clips:
+   mean horizontal speed of the contact joints over frame steps on which they are
+   planted, i.e. less than 3 cm above their planted height (``motionopt.metrics``).
+4. Speed: one forward and backward pass of ``nll`` over 300 frames (median of 20),
+   with the parameter count and the file size.
+
+Run ``python bench/prior.py [CHECKPOINT ...]``; the printed report is also written to
+bench/results/prior.txt (only when the shipped checkpoints are benchmarked).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from motionopt import bvh, metrics
+from motionopt import rotations as R
+from motionopt.dataset import build_dataset
+from motionopt.features import RootStart, decode_positions, encode, to_model_motion
+from motionopt.motion import Motion
+from priors.checkpoint import load_prior, shipped_checkpoints
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "bench" / "results" / "prior.txt"
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+# ---- data -----------------------------------------------------------------------------
+def data_folder(meta: dict) -> Path:
+    """The checkpoint's data folder: relative to the repository, or under /work/shared/data."""
+    for p in (ROOT / meta["data"], Path(meta["data"]), Path("/work/shared/data") / Path(meta["data"]).name):
+        if p.is_dir():
+            return p
+    raise FileNotFoundError(f"training data {meta['data']} not found; the benchmark needs ../shared/data")
+
+
+@dataclass
+class Clip:
+    """A held-out clip as the prior sees it: model motion, normalised features, root start."""
+
+    name: str
+    motion: Motion
+    x: Tensor
+    start: RootStart
+
+
+def held_out_clips(prior, folder: Path) -> list[Clip]:
+    clips = []
+    for name in prior.metadata["validation_clips"]:
+        model = to_model_motion(bvh.load(folder / name), prior.spec)
+        x, start = encode(model, prior.spec)
+        clips.append(Clip(name, model, prior.normalizer.normalize(x).float(), start))
+    return clips
+
+
+def features(prior, motion: Motion) -> Tensor:
+    return prior.normalizer.normalize(encode(motion, prior.spec)[0]).float()
+
+
+# ---- likelihood -----------------------------------------------------------------------
+@dataclass
+class ConstantVelocityGaussian:
+    """Diagonal Gaussian on the constant-velocity residual x_t - (2 x_{t-1} - x_{t-2})."""
+
+    mean: Tensor
+    std: Tensor
+
+    @classmethod
+    def fit(cls, clips: list[Tensor], pose_dim: int) -> "ConstantVelocityGaussian":
+        r = torch.cat([cls.residual(x, pose_dim) for x in clips])
+        return cls(r.mean(0), r.std(0).clamp_min(1e-6))
+
+    @staticmethod
+    def residual(x: Tensor, pose_dim: int) -> Tensor:
+        p = x[..., :pose_dim]
+        return p[2:] - 2 * p[1:-1] + p[:-2]
+
+    def nll(self, x: Tensor) -> Tensor:
+        """Per-frame NLL of frames 2.. of ``x (T, D)``, shape (T-2,)."""
+        z = (self.residual(x, len(self.mean)) - self.mean) / self.std
+        return (0.5 * z * z + torch.log(self.std) + _HALF_LOG_2PI).sum(-1)
+
+
+@torch.no_grad()
+def prior_nll(prior, x: Tensor) -> Tensor:
+    """Per-frame NLL of frames 2.. of ``x`` (frame 0 is the context), to match the baseline."""
+    return prior.nll(x[1:], context=x[:1])[1:]
+
+
+# ---- perturbations --------------------------------------------------------------------
+def rotation_jitter(motion: Motion, scale: float, noise: Tensor) -> Motion:
+    """The motion with local rotations turned by axis-angles ``scale * noise (T, J, 3)``."""
+    q = torch.from_numpy(motion.rotations)
+    turned = R.quat_multiply(q, R.axis_angle_to_quat(scale * noise))
+    return motion.with_frames(turned.numpy(), motion.root.copy())
+
+
+def position_noise(motion: Motion, rms: float = 0.01, seed: int = 0) -> tuple[Motion, float]:
+    """Rotation noise calibrated so joint positions move ``rms`` metres RMS; returns the
+    noisy motion and the axis-angle std (radians) used."""
+    gen = torch.Generator().manual_seed(seed)
+    noise = torch.randn(*motion.rotations.shape[:2], 3, generator=gen, dtype=torch.float64)
+    clean = torch.from_numpy(motion.positions())
+    scale = 0.01
+    for _ in range(3):  # displacement is nearly linear in the scale: a few secant steps
+        moved = torch.from_numpy(rotation_jitter(motion, scale, noise).positions())
+        got = (moved - clean).norm(dim=-1).pow(2).mean().sqrt().item()
+        scale *= rms / got
+    return rotation_jitter(motion, scale, noise), scale
+
+
+def double_speed(motion: Motion) -> Motion:
+    """Every second frame, at the original frame rate."""
+    return replace(motion[::2], fps=motion.fps)
+
+
+# ---- rollouts -------------------------------------------------------------------------
+@torch.no_grad()
+def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, context_s: float = 1.0
+             ) -> list[tuple[Clip, Tensor]]:
+    """World positions (T, J, 3) of ``seconds`` of rollout after 1 s of each clip's
+    context (taken from the middle of the clip), one per clip and seed; clips shorter
+    than the context are skipped."""
+    fps = prior.spec.fps
+    c, n = int(round(context_s * fps)), int(round(seconds * fps))
+    out = []
+    for clip in (c_ for c_ in clips if len(c_.x) >= c):
+        c0 = max(0, len(clip.x) // 2 - c)
+        prefix = clip.x[:c0 + c]
+        gen = torch.Generator().manual_seed(0)
+        new = prior.sample(prefix[-c:].expand(seeds, c, -1), n, generator=gen)
+        full = torch.cat((prefix.expand(seeds, -1, -1), new), dim=1)
+        raw = prior.normalizer.denormalize(full.double())
+        pos = decode_positions(raw, prior.spec, prior.skeleton, clip.start)
+        out += [(clip, p[c0 + c:]) for p in pos]
+    return out
+
+
+def contact_index(prior) -> list[int]:
+    return [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+
+
+def skating(prior, pos: Tensor, clip: Clip) -> float:
+    """Foot skating (m/s) of positions, planted heights taken from the clip itself."""
+    cidx = contact_index(prior)
+    ref = torch.from_numpy(clip.motion.positions())
+    rest = metrics.rest_heights(ref, cidx, clip.start.ground)
+    return float(metrics.foot_skating(pos, prior.spec.fps, cidx, clip.start.ground, rest))
+
+
+# ---- timing ---------------------------------------------------------------------------
+def time_nll_pass(prior, x: Tensor, frames: int = 300, repeats: int = 20) -> float:
+    """Median seconds of one forward and backward pass of nll over ``frames`` frames."""
+    x = x[:frames].clone()
+    times = []
+    for i in range(repeats + 3):
+        xs = x.clone().requires_grad_()
+        t0 = time.perf_counter()
+        prior.nll(xs[1:], context=xs[:1]).sum().backward()
+        if i >= 3:
+            times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+# ---- report ---------------------------------------------------------------------------
+def table(rows: list[list[str]]) -> str:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
+             for r in rows]
+    lines.insert(1, "-" * len(lines[0]))
+    return "\n".join(lines)
+
+
+def bench_checkpoint(path: Path, seconds: float, seeds: int) -> str:
+    prior = load_prior(path)
+    meta = prior.metadata
+    folder = data_folder(meta)
+    t0 = time.perf_counter()
+    train = build_dataset(folder, spec=prior.spec, val=[], include=meta["train_clips"])
+    baseline = ConstantVelocityGaussian.fit([prior.normalizer.normalize(x).float() for x in train.train.values()],
+                                            prior.spec.pose_dim)
+    clips = held_out_clips(prior, folder)
+    lines = [f"== {path.name}: {meta.get('epochs_done')} epochs, {meta.get('training_minutes', 0):.0f} min of "
+             f"training, {len(train.train)} training clips ({train.num_train_frames} frames), "
+             f"{len(clips)} held out; data {folder} (loaded in {time.perf_counter() - t0:.0f} s)",
+             f"   licence: {meta.get('licence')}", ""]
+
+    # 1-2. likelihood and discrimination
+    rows = [["held-out clip", "frames", "prior NLL", "median", "CV-Gauss NLL", "noisy 1cm", "2x speed",
+             "noise deg"]]
+    tot = {k: [] for k in ("prior", "base", "noisy", "fast", "base_noisy", "base_fast")}
+    for clip in clips:
+        noisy, s = position_noise(clip.motion, 0.01, seed=1)
+        xn, xf = features(prior, noisy), features(prior, double_speed(clip.motion))
+        per = {"prior": prior_nll(prior, clip.x), "base": baseline.nll(clip.x), "noisy": prior_nll(prior, xn),
+               "fast": prior_nll(prior, xf), "base_noisy": baseline.nll(xn), "base_fast": baseline.nll(xf)}
+        for k, v in per.items():
+            tot[k].append(v)
+        rows.append([clip.name, str(len(clip.x)), f"{per['prior'].mean():.1f}", f"{per['prior'].median():.1f}",
+                     f"{per['base'].mean():.1f}", f"{per['noisy'].mean():.1f}", f"{per['fast'].mean():.1f}",
+                     f"{math.degrees(s):.2f}"])
+    m = {k: float(torch.cat(v).mean()) for k, v in tot.items()}
+    rows.append(["all (frame-weighted)", str(sum(len(c.x) for c in clips)), f"{m['prior']:.1f}",
+                 f"{float(torch.cat(tot['prior']).median()):.1f}", f"{m['base']:.1f}", f"{m['noisy']:.1f}",
+                 f"{m['fast']:.1f}", ""])
+    lines += ["NLL per frame (nats, lower is more likely); noise deg = axis-angle std per joint giving 1 cm RMS",
+              table(rows), "",
+              f"prior vs constant-velocity baseline: {m['prior']:.1f} vs {m['base']:.1f} "
+              f"({m['base'] - m['prior']:+.1f} nats per frame in favour of the prior)",
+              f"discrimination margins (prior): noisy - clean = {m['noisy'] - m['prior']:+.1f}, "
+              f"2x speed - clean = {m['fast'] - m['prior']:+.1f} nats per frame",
+              f"discrimination margins (baseline): noisy - clean = {m['base_noisy'] - m['base']:+.1f}, "
+              f"2x speed - clean = {m['base_fast'] - m['base']:+.1f} nats per frame", ""]
+
+    # 3. rollouts
+    fps = prior.spec.fps
+    data_speed = float(torch.cat([metrics.joint_speed(torch.from_numpy(c.motion.positions()), fps).flatten()
+                                  for c in clips]).mean())
+    data_skate = statistics.mean(skating(prior, torch.from_numpy(c.motion.positions()), c) for c in clips)
+    t0 = time.perf_counter()
+    runs = rollouts(prior, clips, seconds, seeds)
+    roll_s = time.perf_counter() - t0
+    w = int(round(5 * fps))
+    ratios, skates = [], []
+    rows = [["rollout", "speed min", "speed max", "skating m/s", "skating/data"]]
+    for i, (clip, pos) in enumerate(runs):
+        speed = metrics.joint_speed(pos, fps).mean(-1)
+        r = [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
+        ratios += r
+        sk = skating(prior, pos, clip)
+        skates.append(sk)
+        rows.append([f"{clip.name} seed {i % seeds}", f"{min(r):.2f}", f"{max(r):.2f}", f"{sk:.3f}",
+                     f"{sk / data_skate:.2f}"])
+    inside = sum(0.3 <= r <= 3 for r in ratios)
+    lines += [f"rollouts: {seconds:g} s from 1 s of held-out context, {seeds} seeds per clip "
+              f"({len(runs)} rollouts sampled in {roll_s:.0f} s); joint speed per 5 s window / held-out mean "
+              f"({data_speed:.2f} m/s)", table(rows), "",
+              f"joint speed ratio over all {len(ratios)} windows: min {min(ratios):.2f}, max {max(ratios):.2f}, "
+              f"{inside}/{len(ratios)} inside 0.3..3",
+              f"foot skating: rollouts {statistics.mean(skates):.3f} m/s, held-out data {data_skate:.3f} m/s, "
+              f"ratio {statistics.mean(skates) / data_skate:.2f} (target <= 2)", ""]
+
+    # 4. speed
+    x = torch.cat([c.x for c in clips])
+    sec = time_nll_pass(prior, x)
+    n_par = sum(p.numel() for p in prior.parameters())
+    lines += [f"speed: forward+backward of nll over 300 frames: {1000 * sec:.1f} ms (median of 20, "
+              f"{torch.get_num_threads()} torch threads); {n_par:,} parameters, "
+              f"file {path.stat().st_size / 1e6:.2f} MB", ""]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("checkpoints", nargs="*", type=Path, help="default: the shipped checkpoints")
+    ap.add_argument("--seconds", type=float, default=60.0, help="rollout length (default 60)")
+    ap.add_argument("--seeds", type=int, default=3, help="rollouts per held-out clip (default 3)")
+    args = ap.parse_args()
+    paths = args.checkpoints or shipped_checkpoints()
+    header = f"prior benchmark, {time.strftime('%Y-%m-%d %H:%M')}, torch {torch.__version__}\n"
+    report = header + "\n".join(bench_checkpoint(p, args.seconds, args.seeds) for p in paths)
+    print(report)
+    if not args.checkpoints:
+        RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        RESULTS.write_text(report + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,71 @@
+"""Motion metrics on a real clip and on exact transformations of it."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from motionopt import bvh, metrics
+
+CLIP = Path(__file__).parent / "data" / "cmu-martial-03-step.bvh"
+FEET = ["rFoot", "lFoot"]
+
+
+@pytest.fixture(scope="module")
+def clip():
+    if not CLIP.exists():
+        pytest.skip(f"{CLIP.name} not in tests/data")
+    m = bvh.load(CLIP)
+    pos = torch.from_numpy(m.positions())
+    return pos, m.fps, [m.skeleton.index(n) for n in FEET]
+
+
+def slide(pos: torch.Tensor, fps: float, velocity: tuple[float, float, float]) -> torch.Tensor:
+    """The positions carried along at a constant world velocity (m/s)."""
+    t = torch.arange(len(pos), dtype=pos.dtype)[:, None, None] / fps
+    return pos + t * torch.tensor(velocity, dtype=pos.dtype)
+
+
+def test_joint_speed_of_a_pose_carried_at_constant_velocity(clip):
+    pos, fps, _ = clip
+    still = pos[:1].expand(50, -1, -1)
+    assert torch.equal(metrics.joint_speed(still, fps), torch.zeros(49, pos.shape[1], dtype=pos.dtype))
+    speed = metrics.joint_speed(slide(still, fps, (0.6, 0.0, 0.8)), fps)
+    assert torch.allclose(speed, torch.ones_like(speed))
+
+
+def test_jerk_is_zero_for_constant_velocity_and_grows_with_noise(clip):
+    pos, fps, _ = clip
+    assert metrics.jerk(slide(pos[:1].expand(50, -1, -1), fps, (1.0, 0.0, 0.0)), fps) < 1e-6
+    noisy = pos + 0.005 * torch.randn(pos.shape, generator=torch.Generator().manual_seed(0), dtype=pos.dtype)
+    assert metrics.jerk(noisy, fps) > 5 * metrics.jerk(pos, fps)
+
+
+def test_mpjpe_of_a_shift(clip):
+    pos, _, _ = clip
+    assert metrics.mpjpe(pos + torch.tensor([0.03, 0.04, 0.0], dtype=pos.dtype), pos) == pytest.approx(0.05)
+    assert metrics.mpjpe(pos, pos) == 0
+
+
+def test_foot_skating_sees_a_sliding_clip(clip):
+    pos, fps, feet = clip
+    clean = float(metrics.foot_skating(pos, fps, feet))
+    assert 0 < clean < 0.3  # a stepping clip: planted feet barely move
+    slid = float(metrics.foot_skating(slide(pos, fps, (1.0, 0.0, 0.0)), fps, feet))
+    # the same frames stay planted; each planted speed changes by at most the clean one
+    assert abs(slid - 1.0) <= clean + 1e-9
+
+
+def test_planted_heights_follow_the_ground(clip):
+    pos, fps, feet = clip
+    lifted = pos + torch.tensor([0.0, 0.1, 0.0], dtype=pos.dtype)
+    rest = metrics.rest_heights(pos, feet)
+    assert torch.allclose(metrics.rest_heights(lifted, feet), rest + 0.1)
+    assert torch.equal(metrics.planted(lifted, feet, ground=0.1), metrics.planted(pos, feet))
+    mask = metrics.planted(pos, feet)
+    assert 0 < mask.float().mean() < 1 and mask.shape == (len(pos) - 1, len(feet))
+    # floating half a metre above where the feet rest: never planted, skating undefined
+    assert math.isnan(metrics.foot_skating(pos + torch.tensor([0.0, 0.5, 0.0], dtype=pos.dtype), fps, feet,
+                                           rest=rest))
