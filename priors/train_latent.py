@@ -10,9 +10,11 @@
 3. Masked encoder: the same losses on full windows, from inputs whose unseen frames are
    zeroed (random prefixes and random gaps).
 
-An "epoch" is ``epoch_steps`` optimiser steps. After each, the usable checkpoint ``out``
-and the resumable ``out.train-state.pt`` are written and one JSON line with validation
-figures goes to ``out.log``. A later call with the same ``out`` resumes.
+An "epoch" is ``epoch_steps`` optimiser steps; a phase ends after its epochs or its
+minutes (``gan_minutes``...), and one call stops after ``max_minutes`` (resumable).
+After each epoch, the usable checkpoint ``out`` and the resumable ``out.train-state.pt``
+are written and one JSON line with validation figures goes to ``out.log``. A later call
+with the same ``out`` resumes.
 """
 from __future__ import annotations
 
@@ -68,6 +70,7 @@ class LatentTrainConfig:
     gan_minutes: float | None = None
     encoder_minutes: float | None = None
     masked_minutes: float | None = None
+    max_minutes: float | None = None
     seed: int = 0
     threads: int | None = None
     model: LatentConfig = field(default_factory=LatentConfig)
@@ -279,52 +282,61 @@ class LatentTrainer:
         return out
 
     # ---- loop --------------------------------------------------------------------------
+    def _phase_minutes(self) -> float:
+        """Training minutes spent in the current phase, over all calls."""
+        return sum(r["epoch_minutes"] for r in self.history if r["phase"] == self.phase)
+
+    def _next_phase(self) -> None:
+        nxt = PHASES.index(self.phase) + 1
+        self.phase, self.epoch = (PHASES[nxt] if nxt < len(PHASES) else None), 0
+
     def run(self, out: Path, progress: bool) -> LatentPrior:
+        """Train until every phase is done or this call's ``max_minutes`` is spent."""
         c = self.config
-        t_start = time.perf_counter() - self.seconds
+        call_start = time.perf_counter()
         with log_path(out).open("a") as logf:
             while self.phase is not None:
-                phase_start = time.perf_counter()
-                phase_minutes = 0.0
-                while self.epoch < c.epochs(self.phase):
-                    sums: dict[str, float] = {}
-                    bar = tqdm(range(c.epoch_steps), desc=f"{self.phase} {self.epoch + 1}/{c.epochs(self.phase)}",
-                               disable=not progress, leave=False)
-                    for _ in bar:
-                        parts = self.gan_step() if self.phase == "gan" else self.encoder_step(self.phase == "masked")
-                        self.step += 1
-                        for k, v in parts.items():
-                            sums[k] = sums.get(k, 0.0) + v / c.epoch_steps
-                        bar.set_postfix({k: f"{v:.3g}" for k, v in parts.items()})
-                    if self.phase == "gan":
-                        self.prior.fit_w_statistics(generator=torch.Generator().manual_seed(c.seed))
-                    self.epoch += 1
-                    self.seconds = time.perf_counter() - t_start
-                    phase_minutes += (time.perf_counter() - phase_start) / 60
-                    phase_start = time.perf_counter()
-                    record = {"phase": self.phase, "epoch": self.epoch, "step": self.step, **sums, **self.validate(),
-                              "minutes": self.seconds / 60}
-                    self.history.append(record)
-                    logf.write(json.dumps(record) + "\n")
-                    logf.flush()
-                    if progress:
-                        tqdm.write(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                            for k, v in record.items()))
-                    out_of_time = c.minutes(self.phase) is not None and phase_minutes >= c.minutes(self.phase)
-                    if out_of_time or self.epoch >= c.epochs(self.phase):
-                        if out_of_time:
-                            log.warning("%s phase stops after %d epochs: %.0f minutes reached",
-                                        self.phase, self.epoch, c.minutes(self.phase))
-                        nxt = PHASES.index(self.phase) + 1
-                        self.phase, self.epoch = (PHASES[nxt] if nxt < len(PHASES) else None), 0
+                done = self.epoch >= c.epochs(self.phase)
+                limit = c.minutes(self.phase)
+                if done or (limit is not None and self._phase_minutes() >= limit):
+                    if not done:
+                        log.warning("%s phase stops after %d epochs: %.0f minutes reached", self.phase, self.epoch,
+                                    limit)
+                    self._next_phase()
                     self._save(out)
-                    if self.phase is None or out_of_time:
-                        break
-                if self.phase is not None and self.epoch >= c.epochs(self.phase):  # resumed at a phase end
-                    nxt = PHASES.index(self.phase) + 1
-                    self.phase, self.epoch = (PHASES[nxt] if nxt < len(PHASES) else None), 0
+                    continue
+                self._epoch(logf, progress)
+                self._save(out)
+                if c.max_minutes is not None and (time.perf_counter() - call_start) / 60 >= c.max_minutes:
+                    log.warning("stopping: this call's %.1f minutes are spent; run again to resume", c.max_minutes)
+                    break
         self.prior.eval()
         return self.prior
+
+    def _epoch(self, logf, progress: bool) -> None:
+        c = self.config
+        t0 = time.perf_counter()
+        sums: dict[str, float] = {}
+        bar = tqdm(range(c.epoch_steps), desc=f"{self.phase} {self.epoch + 1}/{c.epochs(self.phase)}",
+                   disable=not progress, leave=False)
+        for _ in bar:
+            parts = self.gan_step() if self.phase == "gan" else self.encoder_step(self.phase == "masked")
+            self.step += 1
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v / c.epoch_steps
+            bar.set_postfix({k: f"{v:.3g}" for k, v in parts.items()})
+        if self.phase == "gan":
+            self.prior.fit_w_statistics(generator=torch.Generator().manual_seed(c.seed))
+        self.epoch += 1
+        epoch_minutes = (time.perf_counter() - t0) / 60
+        self.seconds += epoch_minutes * 60
+        record = {"phase": self.phase, "epoch": self.epoch, "step": self.step, **sums, **self.validate(),
+                  "epoch_minutes": epoch_minutes, "minutes": self.seconds / 60}
+        self.history.append(record)
+        logf.write(json.dumps(record) + "\n")
+        logf.flush()
+        if progress:
+            tqdm.write(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in record.items()))
 
     def _save(self, out: Path) -> None:
         meta = self.prior.metadata

@@ -29,6 +29,8 @@ def register(sub) -> None:
     p.add_argument("--gan-minutes", type=float, default=None, help="stop the GAN phase after this much time")
     p.add_argument("--encoder-minutes", type=float, default=None)
     p.add_argument("--masked-minutes", type=float, default=None)
+    p.add_argument("--max-minutes", type=float, default=None,
+                   help="stop this run after this much time (run the same command again to resume)")
     p.add_argument("--tiny", action="store_true", help="a very small network (for tests and trials)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
@@ -90,7 +92,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg = LatentTrainConfig(gan_epochs=args.gan_epochs, encoder_epochs=args.encoder_epochs,
                             masked_epochs=args.masked_epochs, epoch_steps=args.epoch_steps,
                             gan_minutes=args.gan_minutes, encoder_minutes=args.encoder_minutes,
-                            masked_minutes=args.masked_minutes, seed=args.seed, threads=args.threads,
+                            masked_minutes=args.masked_minutes, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
                             model=LatentConfig(**TINY) if args.tiny else LatentConfig())
     meta = {"training_command": "motionopt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
             "data": str(Path(args.data)), "licence": args.licence}

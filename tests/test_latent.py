@@ -1,0 +1,208 @@
+"""The latent (W+) prior: protocol, checkpoint, training phases, masked encoder,
+inversion, semantic directions and the latent commands, on tiny real runs."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from motionopt import attributes as A
+from motionopt import bvh
+from motionopt.cli import main
+from motionopt.cli.latent import TINY
+from motionopt.inversion import InversionOptions, blend, invert, window_starts
+from priors.checkpoint import CheckpointError, load_prior, read_checkpoint
+from priors.latent import LatentConfig, LatentPrior
+from priors.protocol import LatentMotionPrior
+from priors.semantic import AttributeScorer, directions_of, edit_codes
+from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
+from problems.latent import LatentOptions, fuse, infill, reconstruct
+
+from priorkit import DATA, cmu_clips, tiny_dataset
+from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
+
+WINDOW = 32
+
+
+def config(**kw) -> LatentTrainConfig:
+    return LatentTrainConfig(**{"gan_epochs": 2, "encoder_epochs": 2, "masked_epochs": 2, "epoch_steps": 15,
+                                "batch_size": 8, "stride": 2, "encoder_lr": 3e-3, "seed": 5,
+                                "model": LatentConfig(**{**TINY, "window": WINDOW}), **kw})
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A tiny run stopped after its first epoch, then resumed through all phases."""
+    out = tmp_path_factory.mktemp("latent") / "tiny-latent.pt"
+    train_latent(tiny_dataset(), out, config(max_minutes=0.0), metadata={"licence": "test licence"}, progress=False)
+    first = read_checkpoint(out)["metadata"]
+    train_latent(tiny_dataset(), out, config(), metadata={"licence": "test licence"}, progress=False)
+    return out, first
+
+
+@pytest.fixture(scope="module")
+def prior(trained) -> LatentPrior:
+    return load_prior(trained[0])
+
+
+def test_protocol_and_shapes(prior):
+    assert isinstance(prior, LatentMotionPrior)
+    d, n = prior.spec.dim, 3
+    w = prior.mapping(torch.randn(n, prior.config.z_dim))
+    assert w.shape == (n, prior.config.w_dim) and prior.mean_w.shape == (prior.config.w_dim,)
+    x = prior.generate(prior.broadcast(w))
+    assert x.shape == (n, WINDOW, d)
+    contacts = x[..., prior.spec.slices()["contacts"]]
+    assert contacts.min() >= 0 and contacts.max() <= 1
+    assert prior.encode(x).shape == (n, prior.num_ws, prior.config.w_dim)
+    assert prior.encode_masked(x, torch.ones(n, WINDOW)).shape == (n, prior.num_ws, prior.config.w_dim)
+    with pytest.raises(ValueError, match="expected windows"):
+        prior.encode(x[:, :-1])
+
+
+def test_checkpoint_metadata_and_resume(trained, prior):
+    out, first = trained
+    data = read_checkpoint(out)
+    assert data["kind"] == "LatentPrior"
+    assert not any(k.startswith("disc") for k in data["state_dict"])  # the discriminator is not shipped
+    meta = prior.metadata
+    assert meta["licence"] == "test licence"
+    assert meta["validation_clips"] == [cmu_clips()[-1].name]
+    assert not set(meta["validation_clips"]) & set(meta["train_clips"])
+    assert first["phases_done"] == [] and [r["phase"] for r in first["history"]] == ["gan"]
+    assert meta["phases_done"] == ["gan", "encoder", "masked"]
+    phases = [r["phase"] for r in meta["history"]]
+    assert phases == ["gan", "gan", "encoder", "encoder", "masked", "masked"]  # resumed, not restarted
+    lines = [json.loads(s) for s in log_path(out).read_text().splitlines()]
+    assert [r["epoch"] for r in lines] == [1, 2, 1, 2, 1, 2]
+    assert "val_fd" in lines[0] and "val_local_mm" in lines[-1]
+    assert state_path(out).exists()
+    assert set(meta["attribute_directions"]) >= {"crouch", "root_speed"}
+
+
+def test_checkpoint_version_is_checked(trained, tmp_path):
+    data = torch.load(trained[0], weights_only=True)
+    data["spec"]["version"] = 99
+    bad = tmp_path / "old.pt"
+    torch.save(data, bad)
+    with pytest.raises(CheckpointError, match="feature version 99"):
+        load_prior(bad)
+
+
+def test_generation_is_deterministic_and_loaded_prior_matches(trained, prior):
+    again = load_prior(trained[0])
+    w = prior.broadcast(prior.sample_w(2, torch.Generator().manual_seed(0)))
+    assert torch.equal(prior.generate(w), again.generate(w))
+
+
+def test_masked_encoder_ignores_unseen_frames(prior):
+    x = tiny_dataset().windows("train", WINDOW, 4)[:2]
+    mask = torch.zeros(2, WINDOW)
+    mask[:, :12] = 1  # a prefix
+    mask[1, 24:] = 1  # and, for the second window, a gap
+    other = x + torch.randn(x.shape, generator=torch.Generator().manual_seed(1)) * (1 - mask[..., None])
+    assert torch.allclose(prior.encode_masked(x, mask), prior.encode_masked(other, mask), atol=1e-6)
+    seen_changed = x + 0.5 * mask[..., None]
+    assert not torch.allclose(prior.encode_masked(x, mask), prior.encode_masked(seen_changed, mask), atol=1e-4)
+
+
+def test_window_blend_covers_long_clips():
+    starts = window_starts(100, 32, 8)
+    assert starts[0] == 0 and starts[-1] == 68 and all(b - a <= 24 for a, b in zip(starts, starts[1:]))
+    windows = torch.stack([torch.full((32, 3), float(s)) for s in starts])
+    out = blend(windows, starts, 100)
+    assert out.shape == (100, 3)
+    assert torch.all(out[1:, 0] >= out[:-1, 0])  # cross-fades between consecutive windows, no jumps back
+    ones = blend(torch.ones(len(starts), 32, 3), starts, 100)
+    assert torch.allclose(ones, torch.ones(100, 3))
+
+
+def test_inversion_improves_the_objective(prior):
+    clip = bvh.load(cmu_clips()[-1])  # held out, longer than a window
+    enc = reconstruct(prior, clip, LatentOptions(overlap=8))
+    ref = reconstruct(prior, clip, LatentOptions(overlap=8, refine_iters=15))
+    assert len(ref.inversion.starts) > 1
+    assert ref.inversion.objective_start == pytest.approx(enc.inversion.objective, rel=1e-5)
+    assert ref.inversion.objective < 0.9 * ref.inversion.objective_start
+    assert ref.motion.skeleton.names == clip.skeleton.names and ref.motion.fps == clip.fps
+    pso = reconstruct(prior, clip, LatentOptions(overlap=8, pso_iters=3))
+    assert pso.inversion.objective <= pso.inversion.objective_start + 1e-6
+
+
+def test_inversion_needs_terms_to_refine(prior):
+    x = tiny_dataset().windows("train", WINDOW, 4)[0]
+    with pytest.raises(ValueError, match="need task terms"):
+        invert(prior, x, options=InversionOptions(refine_iters=3))
+
+
+def test_infill_keeps_seen_frames_closer_than_unseen(prior):
+    clip = bvh.load(cmu_clips()[-1])
+    seen = np.zeros(clip.num_frames, bool)
+    seen[: clip.num_frames // 2] = True
+    r = infill(prior, clip, seen, LatentOptions(refine_iters=10))
+    assert r.inversion.objective < r.inversion.objective_start
+    assert r.motion.num_frames > 0.9 * clip.num_frames
+
+
+def test_semantic_direction_moves_the_score(prior):
+    """On a fixed seed, samples pushed along a fitted direction score higher than samples
+    pushed the other way, for every computed attribute with a usable classifier."""
+    scorer = AttributeScorer(prior)
+    dirs = directions_of(prior)
+    w = prior.broadcast(prior.sample_w(256, torch.Generator().manual_seed(11)))
+    checked = 0
+    for name in ("crouch", "root_speed"):
+        up = scorer(prior.generate(edit_codes(w, dirs[name], 2.0)))[name].mean()
+        down = scorer(prior.generate(edit_codes(w, dirs[name], -2.0)))[name].mean()
+        assert up > down, name
+        checked += 1
+    assert checked == 2
+
+
+def test_gral_score_follows_the_arm():
+    t = torch.linspace(0, 1, 32)
+    pos = torch.zeros(32, 3, 3)
+    pos[:, 1] = torch.stack((torch.sin(t * 2), -torch.cos(t * 2), torch.zeros(32)), -1)  # elbow swings up
+    pos[:, 2] = pos[:, 1] * 2
+    assert float(A.gradual_right_arm_lift(pos, 0, 1, 2)) == 1.0
+    assert float(A.gradual_right_arm_lift(pos.flip(0), 0, 1, 2)) == 0.0
+    assert A.right_arm(("hip", "rCollar", "rShldr", "rForeArm", "rHand"), [-1, 0, 1, 2, 3]) == (2, 3, 4)
+    assert A.style_of("dataset-1_walk-back_not-confident_003.bvh") == "not-confident"
+    root = torch.stack((torch.arange(30.0) * 0.1, torch.ones(30), torch.zeros(30)), -1)
+    assert float(A.root_speed(root, 30.0)) == pytest.approx(3.0)
+
+
+def test_fuse_output_keeps_the_file_layout(prior):
+    a, b = (bvh.load(p) for p in cmu_clips())
+    r = fuse(prior, a, b, at=30)
+    assert r.motion.skeleton.names == a.skeleton.names and r.motion.skeleton.channels == a.skeleton.channels
+    assert r.motion.fps == a.fps and r.motion.source_unit == a.source_unit
+    with pytest.raises(ValueError, match="must fall inside"):
+        fuse(prior, a, b, at=10_000)
+
+
+def test_commands_write_bvh(trained, tmp_path, capsys):
+    ckpt = str(trained[0])
+    a, b = (str(p) for p in cmu_clips())
+    out = tmp_path / "fused.bvh"
+    assert main(["fuse", a, b, "--at", "30", "--out", str(out), "--prior", ckpt, "-q"]) == 0
+    src = bvh.read_channels(a)
+    got = bvh.read_channels(out)
+    assert got[0].names == src[0].names and got[2] == pytest.approx(src[2])
+    assert main(["latent-edit", b, "--attribute", "crouch", "--strength", "1", "--out", str(tmp_path / "e.bvh"),
+                 "--prior", ckpt, "-q"]) == 0
+    assert main(["vary", b, "--count", "2", "--out-dir", str(tmp_path / "v"), "--prior", ckpt, "-q"]) == 0
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == [f"{DATA.joinpath(b).stem}_var_0{i}.bvh"
+                                                                  for i in range(2)]
+    assert main(["interpolate", a, b, "--steps", "3", "--out-dir", str(tmp_path / "i"), "--prior", ckpt, "-q"]) == 0
+    assert len(list((tmp_path / "i").iterdir())) == 3
+    assert main(["latent-edit", b, "--attribute", "nope", "--out", str(tmp_path / "x.bvh"), "--prior", ckpt]) == 1
+    assert "unknown attribute" in capsys.readouterr().err
+
+
+def test_config_rejects_bad_window():
+    with pytest.raises(ValueError, match="multiple of"):
+        replace(LatentConfig(), window=60)
