@@ -80,7 +80,7 @@ def test_score_of_a_clip_shorter_than_a_window(capsys, ckpt, tmp_path):
 
 def test_score_text_output(capsys, ckpt):
     rc, out, _ = run(capsys, "score", cmu_clips()[0], "--prior", ckpt)
-    assert rc == 0 and "nats per frame" in out and "  frames 0:120" in out
+    assert rc == 0 and "nats per frame under tiny.pt" in out and "  frames 0:120" in out
 
 
 def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_path):
@@ -91,12 +91,17 @@ def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_pat
     assert "lacks lThigh, lShin, lFoot" in err and "train-prior" in err and len(err.splitlines()) == 1
 
 
-def test_score_picks_the_shipped_prior_of_the_skeleton(capsys):
-    if not (CHECKPOINT_DIR / "cmu-ccnet.pt").exists():
-        pytest.skip("shipped CMU prior not built")
-    rc, out, err = run(capsys, "score", cmu_clips()[0], "--json")
+@pytest.mark.parametrize("clip, expected", [("cmu-salsa-01-steps.bvh", "cmu-ccnet.pt"),
+                                             ("bandai-walk-normal-001.bvh", "bandai-locomotion-ccnet.pt")])
+def test_score_picks_the_shipped_prior_of_the_skeleton(capsys, clip, expected):
+    if not (CHECKPOINT_DIR / expected).exists() or not (DATA / clip).exists():
+        pytest.skip(f"needs the shipped {expected} and tests/data/{clip}")
+    rc, out, err = run(capsys, "score", DATA / clip, "--json")
     assert rc == 0, err
-    assert json.loads(out)["prior_fps"] == read_checkpoint(CHECKPOINT_DIR / "cmu-ccnet.pt")["spec"]["fps"]
+    report = json.loads(out)
+    assert report["prior"] == str(CHECKPOINT_DIR / expected)
+    assert report["prior_fps"] == read_checkpoint(CHECKPOINT_DIR / expected)["spec"]["fps"]
+    assert report["frames"] == bvh.load(DATA / clip).num_frames
 
 
 def test_prior_info_prints_licence_and_metadata(capsys, ckpt):

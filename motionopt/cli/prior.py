@@ -116,13 +116,13 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def load_prior_for(motion, path: str | None):
-    """The named prior, or the shipped one whose skeleton matches the motion."""
+    """The named prior, or the shipped one whose skeleton matches the motion; and its path."""
     from priors.checkpoint import check_compatible, find_prior_for, load_prior
 
     path = path or find_prior_for(motion.skeleton)
     prior = load_prior(path)
     check_compatible(prior.spec, motion.skeleton, path)
-    return prior
+    return prior, Path(path)
 
 
 def cmd_score(args: argparse.Namespace) -> int:
@@ -130,13 +130,13 @@ def cmd_score(args: argparse.Namespace) -> int:
     from priors.score import score_motion
 
     motion = bvh.load(args.input, unit=args.unit, fps=args.fps)
-    prior = load_prior_for(motion, args.prior)
+    prior, path = load_prior_for(motion, args.prior)
     report = score_motion(prior, motion)
     if args.json:
-        print(json.dumps(report.to_dict(), indent=2))
+        print(json.dumps({**report.to_dict(), "prior": str(path)}, indent=2))
     elif not args.quiet:
-        print(f"{args.input}: {report.nll_per_frame:.2f} nats per frame under the prior "
-              f"(lower is more natural; {report.frames} frames)")
+        print(f"{args.input}: {report.nll_per_frame:.2f} nats per frame under {path.name} "
+              f"(lower is more natural; {report.frames} frames at {motion.fps:g} fps)")
         for a, b, v in report.worst:
             print(f"  frames {a}:{b}  {v:.2f} nats per frame")
     return 0
