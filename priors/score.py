@@ -9,7 +9,7 @@ import torch
 from motionopt.features import encode, to_model_motion
 from motionopt.motion import Motion
 
-from .checkpoint import check_compatible
+from .checkpoint import CheckpointError, check_compatible
 
 
 @dataclass
@@ -35,6 +35,9 @@ def features_of(prior, motion: Motion) -> torch.Tensor:
     """Normalised features (T, D) of a motion for ``prior`` (resampled, joints selected)."""
     check_compatible(prior.spec, motion.skeleton)
     model = to_model_motion(motion, prior.spec)
+    if not model.skeleton.same_hierarchy(prior.skeleton):
+        raise CheckpointError("the motion's joints have the prior's names but another hierarchy (parents "
+                              "differ); use a prior trained on this skeleton (`motionopt train-prior`)")
     x, _ = encode(model, prior.spec)
     return prior.normalizer.normalize(x).float()
 

@@ -178,3 +178,17 @@ def test_motion_of_another_skeleton_is_refused(prior):
         check_compatible(prior.spec, legless.skeleton)
     with pytest.raises(CheckpointError, match="lacks"):
         features_of(prior, legless)
+
+
+def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
+    from motionopt import bvh
+    from motionopt.motion import Motion
+    from motionopt.skeleton import Skeleton
+
+    m = bvh.load(cmu_clips()[0])
+    sk = m.skeleton
+    parents = sk.parents.copy()
+    parents[sk.index("lButtock")] = sk.index("abdomen")  # another rig's idea of the pelvis
+    other = Skeleton(sk.names, parents, sk.offsets, sk.channels)
+    with pytest.raises(CheckpointError, match="another hierarchy"):
+        features_of(prior, Motion(other, m.rotations, m.root, m.fps))
