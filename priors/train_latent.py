@@ -343,6 +343,7 @@ class LatentTrainer:
         meta["history"] = self.history
         meta["training_minutes"] = self.seconds / 60
         meta["steps_done"] = self.step
+        meta["epochs_done"] = len(self.history)
         meta["phase_next"] = self.phase
         meta["phases_done"] = [p for p in PHASES if self.phase is None or PHASES.index(p) < PHASES.index(self.phase)]
         save_prior(self.prior, out)

@@ -103,7 +103,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         "validation_clips": meta.get("validation_clips"),
         "epochs": meta.get("epochs_done"),
         "training_minutes": meta.get("training_minutes"),
-        "final_val_nll_per_frame": hist[-1]["val_nll_per_frame"] if hist else None,
+        "final_val_nll_per_frame": hist[-1].get("val_nll_per_frame") if hist else None,
+        "final_validation": {k: v for k, v in hist[-1].items() if k.startswith("val_")} if hist else None,
     }
     if args.json:
         print(json.dumps(info, indent=2))
