@@ -21,6 +21,9 @@ clips named in its metadata, loaded from the data folder named there:
    as much as the edited one, in standard deviations of the unedited scores. Style
    directions (Bandai) are checked by re-encoding the edited motions: the projection of
    their mean w on the direction, in standard deviations of W.
+4. Tasks on held-out clips, latent inversion against the autoregressive MAP tasks of
+   the same name: denoising (accuracy against the clean clip) and in-betweening of a
+   1.5 s gap (accuracy on the gap), with seconds per clip.
 
 Run ``python bench/latent.py [CHECKPOINT ...] [--threads N]``; the report is printed
 and, for the shipped checkpoints, written to bench/results/latent.txt.
@@ -35,13 +38,16 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from motionopt import bvh
+from motionopt import rotations as R
 from motionopt.dataset import build_dataset
-from motionopt.features import RootStart, decode_positions
+from motionopt.features import RootStart, decode_positions, to_model_motion
 from motionopt.inversion import refine, regulariser
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
+from motionopt.motion import Motion
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
 from priors.semantic import AttributeScorer, directions_of, edit_codes
-from problems.latent import FidelityTerm
+from problems.latent import FidelityTerm, LatentOptions, infill, reconstruct
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "latent.txt"
@@ -233,6 +239,79 @@ def semantic(prior) -> list[str]:
     return lines
 
 
+def add_noise(motion: Motion, angle_sigma: float, root_sigma: float, seed: int) -> Motion:
+    """Capture-like noise: every local rotation turned by an axis-angle from N(0, s^2 I),
+    the root moved by N(0, root_sigma^2) per axis (metres)."""
+    g = torch.Generator().manual_seed(seed)
+    q = torch.from_numpy(motion.rotations)
+    turn = R.axis_angle_to_quat(torch.randn(q.shape[:-1] + (3,), generator=g, dtype=q.dtype) * angle_sigma)
+    root = motion.root + torch.randn(motion.root.shape, generator=g, dtype=q.dtype).numpy() * root_sigma
+    return motion.with_frames(R.quat_multiply(q, turn).numpy(), root, motion.translations)
+
+
+def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None)) -> float:
+    """Mean world joint position error (mm) on the prior's joints, at the prior's rate."""
+    a = to_model_motion(out, prior.spec).positions()
+    b = to_model_motion(clean, prior.spec).positions()
+    n = min(len(a), len(b))
+    return float(np.linalg.norm(a[:n][frames] - b[:n][frames], axis=-1).mean() * 1000)
+
+
+def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: float = 8.0) -> list[str]:
+    """Denoising and in-betweening of held-out clips, latent inversion against the
+    autoregressive MAP tasks (``problems.denoise``, ``problems.inbetween``)."""
+    ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
+    try:
+        from problems.denoise import Denoise
+        from problems.inbetween import Inbetween
+    except ImportError as e:
+        Denoise = Inbetween = None  # noqa: N806
+        ar_note = f"autoregressive tasks unavailable ({e})"
+    else:
+        ar_note = "" if ar is not None else "no autoregressive prior for this data"
+    rows: dict[str, list[tuple[float, float]]] = {}
+
+    def record(name: str, err: float, secs: float) -> None:
+        rows.setdefault(name, []).append((err, secs))
+
+    for i, name in enumerate(clips):
+        full = bvh.load(data / name)
+        clean = full[: int(seconds * full.fps)]
+        noisy = add_noise(clean, 0.05, 0.01, seed=i)
+        record("denoise: noisy input", model_error_mm(prior, noisy, clean), 0.0)
+        for label, opts in (("latent encoder", LatentOptions()), ("latent + L-BFGS 30", LatentOptions(refine_iters=30))):
+            t0 = time.perf_counter()
+            out = reconstruct(prior, noisy, opts).motion
+            record(f"denoise: {label}", model_error_mm(prior, out, clean), time.perf_counter() - t0)
+        if Denoise is not None and ar is not None:
+            t0 = time.perf_counter()
+            out = Denoise(noisy, ar).solve().motion
+            record(f"denoise: AR MAP ({ar_path.name})", model_error_mm(prior, out, clean), time.perf_counter() - t0)
+        a, b = int(2.0 * clean.fps), int(3.5 * clean.fps)  # 1.5 s gap
+        seen = np.ones(clean.num_frames, bool)
+        seen[a:b] = False
+        gap = slice(int(a * prior.spec.fps / clean.fps), int(b * prior.spec.fps / clean.fps))
+        for label, opts in (("latent masked encoder", LatentOptions()),
+                            ("latent masked + L-BFGS 30", LatentOptions(refine_iters=30))):
+            t0 = time.perf_counter()
+            out = infill(prior, clean, seen, opts).motion
+            record(f"in-between 1.5 s: {label}", model_error_mm(prior, out, clean, gap), time.perf_counter() - t0)
+        if Inbetween is not None and ar is not None:
+            t0 = time.perf_counter()
+            out = Inbetween(clean, [(0, a), (b, clean.num_frames)], ar).solve().motion
+            record(f"in-between 1.5 s: AR MAP ({ar_path.name})", model_error_mm(prior, out, clean, gap),
+                   time.perf_counter() - t0)
+    lines = [f"4. Tasks on the first {seconds:g} s of each held-out clip ({len(clips)} clips): mean joint position "
+             "error against the clean clip (mm; in-betweening: on the gap frames) and seconds per clip",
+             "   denoising input: rotations turned by N(0, 0.05 rad) per axis, root moved by N(0, 1 cm)",
+             f"   {'task and method':<52}{'error mm':>10}{'s/clip':>9}"]
+    for name, v in rows.items():
+        lines.append(f"   {name:<52}{np.mean([e for e, _ in v]):>10.1f}{np.mean([t for _, t in v]):>9.2f}")
+    if ar_note:
+        lines.append(f"   {ar_note}")
+    return lines
+
+
 def bench(path: Path, iters: int, reg: float) -> list[str]:
     prior = load_prior(path)
     meta = prior.metadata
@@ -250,6 +329,7 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
     ar = CHECKPOINT_DIR / AR_FOR[path.name] if path.name in AR_FOR else None
     lines += sampling(prior, ar, clip_windows(ds.train, prior, 8), clip_windows(ds.val, prior, 8))
     lines += semantic(prior)
+    lines += tasks(prior, ar, data, meta["validation_clips"])
     return lines
 
 

@@ -151,6 +151,27 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Latent
     return _output(prior, inv.x, prep.start, motion, inv)
 
 
+def hold_last_frame(motion: Motion, n_frames: int) -> Motion:
+    """The motion lengthened to ``n_frames`` by repeating its last frame (for completion)."""
+    if n_frames <= motion.num_frames:
+        return motion
+    idx = np.minimum(np.arange(n_frames), motion.num_frames - 1)
+    tr = None if motion.translations is None else motion.translations[idx]
+    return Motion(motion.skeleton, motion.rotations[idx], motion.root[idx], motion.fps, tr, motion.source_unit)
+
+
+def complete(prior: LatentPrior, motion: Motion, prefix: int, n_frames: int,
+             options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+    """Prefix completion (MoDi 4): keep the first ``prefix`` frames, generate up to ``n_frames``."""
+    if not 0 < prefix <= motion.num_frames:
+        raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
+    if n_frames <= prefix:
+        raise ValueError(f"--frames {n_frames} must be larger than --prefix {prefix}")
+    seen = np.zeros(n_frames, bool)
+    seen[:prefix] = True
+    return infill(prior, hold_last_frame(motion[:prefix], n_frames), seen, options)
+
+
 def directions(prior: LatentPrior) -> dict[str, Direction]:
     """Stored directions, or the computed-attribute ones fitted now when none are stored."""
     found = directions_of(prior)
