@@ -47,6 +47,33 @@ def log_path(out: Path) -> Path:
     return out.with_suffix(".log")
 
 
+def start_run(out: Path, force: bool, threads: int | None, seed: int) -> Path:
+    """Checks before a training run writes ``out``; sets threads and the seed. Returns the
+    training-state path (resume when it exists)."""
+    sp = state_path(out)
+    if out.exists() and not sp.exists() and not force:
+        raise FileExistsError(f"{out} exists and has no training state to resume; pass force=True (--force) to retrain")
+    if threads:
+        torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    return sp
+
+
+def provenance(dataset: MotionDataset, config, metadata: dict | None) -> dict:
+    """What a checkpoint records about its training: data split, settings (a dataclass
+    whose ``model`` field is the architecture, stored apart), platform."""
+    return {
+        **(metadata or {}),
+        "train_clips": sorted(dataset.train),
+        "validation_clips": sorted(dataset.val),
+        "train_frames": dataset.num_train_frames,
+        "fps": dataset.spec.fps,
+        "train_config": {k: v for k, v in asdict(config).items() if k != "model"},
+        "platform": platform.platform(),
+        "torch": str(torch.__version__),
+    }
+
+
 @torch.no_grad()
 def validation_nll(prior: CCNetPrior, windows: torch.Tensor, batch: int = 128) -> float:
     """Mean per-frame NLL (pose dimensions, nats) of validation windows, all frames after the first."""
@@ -70,25 +97,11 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     state. ``out.log`` receives one JSON line per epoch.
     """
     out = Path(out)
-    sp = state_path(out)
-    if out.exists() and not sp.exists() and not force:
-        raise FileExistsError(f"{out} exists and has no training state to resume; pass force=True (--force) to retrain")
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
+    sp = start_run(out, force, config.threads, config.seed)
     gen = torch.Generator().manual_seed(config.seed)
     train_w = dataset.windows("train", config.window, config.stride)
     val_w = dataset.windows("val", config.window, config.window // 2) if dataset.val else None
-    meta = {
-        **(metadata or {}),
-        "train_clips": sorted(dataset.train),
-        "validation_clips": sorted(dataset.val),
-        "train_frames": dataset.num_train_frames,
-        "fps": dataset.spec.fps,
-        "train_config": {k: v for k, v in asdict(config).items() if k != "model"},
-        "platform": platform.platform(),
-        "torch": str(torch.__version__),
-    }
+    meta = provenance(dataset, config, metadata)
     prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, config.model, meta)
     opt = torch.optim.Adam(prior.parameters(), lr=config.lr)
     steps_per_epoch = math.ceil(len(train_w) / config.batch_size)

@@ -21,9 +21,8 @@ from __future__ import annotations
 import copy
 import json
 import logging
-import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -39,6 +38,7 @@ from motionopt.metrics_latent import frechet_distance, local_position_error_mm, 
 from .checkpoint import atomic_torch_save, save_prior
 from .latent import Discriminator, LatentConfig, LatentPrior
 from .semantic import fit_attribute_directions, fit_style_directions
+from .train import log_path, provenance, start_run, state_path
 
 log = logging.getLogger(__name__)
 
@@ -80,14 +80,6 @@ class LatentTrainConfig:
 
     def minutes(self, phase: str) -> float | None:
         return getattr(self, f"{phase}_minutes")
-
-
-def state_path(out: Path) -> Path:
-    return out.with_suffix(".train-state.pt")
-
-
-def log_path(out: Path) -> Path:
-    return out.with_suffix(".log")
 
 
 class Geometry:
@@ -354,22 +346,8 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
                  metadata: dict | None = None, progress: bool = True, force: bool = False) -> LatentPrior:
     """Train a latent prior on ``dataset`` and write the checkpoint ``out`` (see module doc)."""
     out = Path(out)
-    sp = state_path(out)
-    if out.exists() and not sp.exists() and not force:
-        raise FileExistsError(f"{out} exists and has no training state to resume; pass force=True (--force) to retrain")
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
-    meta = {
-        **(metadata or {}),
-        "train_clips": sorted(dataset.train),
-        "validation_clips": sorted(dataset.val),
-        "train_frames": dataset.num_train_frames,
-        "fps": dataset.spec.fps,
-        "train_config": {k: v for k, v in asdict(config).items() if k != "model"},
-        "platform": platform.platform(),
-        "torch": str(torch.__version__),
-    }
+    sp = start_run(out, force, config.threads, config.seed)
+    meta = provenance(dataset, config, metadata)
     trainer = LatentTrainer(dataset, config, meta)
     if sp.exists():
         trainer.load_state(torch.load(sp, map_location="cpu", weights_only=False))

@@ -13,23 +13,12 @@ def register(sub) -> None:
     p = sub.add_parser("train-prior", help="train an autoregressive prior on a folder of BVH files",
                        description="Train the causal-convolution prior on every BVH file under --data. "
                        "Resumes from OUT.train-state.pt when it exists; logs to OUT.log.")
-    p.add_argument("--data", required=True, help="folder of BVH files (searched recursively)")
-    p.add_argument("--out", required=True, help="checkpoint file to write")
-    p.add_argument("--val", nargs="*", default=None,
-                   help="clips to hold out (paths relative to --data, patterns allowed); "
-                   "default: the last clip of each sub-folder, or every 10th clip")
-    p.add_argument("--include", nargs="*", default=None, help="train only on clips matching these patterns")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate the prior models (default 30)")
-    p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
+    add_training_data_args(p)
     p.add_argument("--epochs", type=int, default=40)
     p.add_argument("--window", type=int, default=96, help="frames per training window (default 96; "
                    "every clip shorter than this is left out)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
-    p.add_argument("--licence", default="same as the training data", help="licence of the trained weights")
-    p.add_argument("--force", action="store_true", help="overwrite OUT when there is no state to resume")
-    add_common(p)
+    add_training_run_args(p)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("prior-info", help="print a prior checkpoint's metadata")
@@ -48,15 +37,43 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_score)
 
 
-def cmd_train(args: argparse.Namespace) -> int:
+def add_training_data_args(p: argparse.ArgumentParser) -> None:
+    """Options of every training command that say what to train on and where to write."""
+    p.add_argument("--data", required=True, help="folder of BVH files (searched recursively)")
+    p.add_argument("--out", required=True, help="checkpoint file to write")
+    p.add_argument("--val", nargs="*", default=None,
+                   help="clips to hold out (paths relative to --data, patterns allowed); "
+                   "default: the last clip of each sub-folder, or every 10th clip")
+    p.add_argument("--include", nargs="*", default=None, help="train only on clips matching these patterns")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate the prior models (default 30)")
+    p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
+
+
+def add_training_run_args(p: argparse.ArgumentParser) -> None:
+    """Options of every training command about the run: seed, threads, licence, overwrite."""
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for torch")
+    p.add_argument("--licence", default="same as the training data", help="licence of the trained weights")
+    p.add_argument("--force", action="store_true", help="overwrite OUT when there is no state to resume")
+    add_common(p)
+
+
+def training_dataset(args: argparse.Namespace):
+    """The dataset the training options name, with a one-line summary unless --quiet."""
     from motionopt.dataset import build_dataset
-    from priors.ccnet import CCNetConfig  # noqa: F401  (config defaults documented there)
-    from priors.train import TrainConfig, train_prior
 
     ds = build_dataset(args.data, fps=args.fps, val=args.val, unit=args.unit, include=args.include)
     if not args.quiet:
         print(f"{len(ds.train)} training clips ({ds.num_train_frames} frames at {ds.spec.fps:g} fps), "
               f"{len(ds.val)} held out; prepared in {ds.seconds_to_build:.1f} s")
+    return ds
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from priors.ccnet import CCNetConfig  # noqa: F401  (config defaults documented there)
+    from priors.train import TrainConfig, train_prior
+
+    ds = training_dataset(args)
     cfg = TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                       threads=args.threads)
     meta = {"training_command": train_command(args), "data": str(Path(args.data)), "licence": args.licence}
