@@ -96,10 +96,16 @@ class LatentTaskResult:
 
 
 def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
-            metrics: dict | None = None) -> LatentTaskResult:
+            metrics: dict | None = None, n_frames: int | None = None) -> LatentTaskResult:
+    """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
+    original's rate (default: as many as the features last). The model motion is held one
+    frame longer so that resampling covers the last file frame."""
     raw = prior.normalizer.denormalize(x.double())
     model = decode_motion(raw, prior.spec, prior.skeleton, start, like=original)
-    return LatentTaskResult(to_file_motion(model, original), model, inv, dict(metrics or {}))
+    if n_frames is None:
+        n_frames = int(round((model.num_frames - 1) * original.fps / model.fps)) + 1
+    motion = to_file_motion(hold_last_frame(model, model.num_frames + 1), original)[:n_frames]
+    return LatentTaskResult(motion, model, inv, dict(metrics or {}))
 
 
 def _model_frame(prior: LatentPrior, motion: Motion, frame: int) -> int:
@@ -112,7 +118,7 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: LatentOptions = Lat
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     inv = invert(prior, prep.x, terms=[term], options=options.inversion())
-    return _output(prior, inv.x, prep.start, motion, inv)
+    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames)
 
 
 def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: LatentOptions = LatentOptions(),
@@ -148,7 +154,7 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Latent
         raise ValueError("no frame is seen: give at least one known frame")
     term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
     inv = invert(prior, prep.x, mask=mask, terms=[term], options=options.inversion())
-    return _output(prior, inv.x, prep.start, motion, inv)
+    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames)
 
 
 def hold_last_frame(motion: Motion, n_frames: int) -> Motion:
@@ -206,7 +212,8 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
     x = _generate_clip(prior, codes, inv, len(prep.x))
     inv.timings["total"] = time.perf_counter() - t0
     return _output(prior, x, prep.start, motion, inv, {"attribute": attribute, "strength": strength,
-                                                      "classifier_accuracy": dirs[attribute].accuracy})
+                                                      "classifier_accuracy": dirs[attribute].accuracy},
+                   n_frames=motion.num_frames)
 
 
 def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: LatentOptions = LatentOptions()
@@ -242,5 +249,6 @@ def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int
         eps = torch.randn(prior.config.w_dim, generator=g) * sigma
         delta = (eps * prior.w_scales) @ prior.w_components
         x = _generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
-        out.append(_output(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed}))
+        out.append(_output(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed},
+                           n_frames=motion.num_frames))
     return out

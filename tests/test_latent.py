@@ -19,7 +19,7 @@ from priors.latent import LatentConfig, LatentPrior
 from priors.protocol import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
-from problems.latent import LatentOptions, fuse, infill, reconstruct
+from problems.latent import LatentOptions, complete, fuse, infill, reconstruct
 
 from priorkit import DATA, cmu_clips, tiny_dataset
 from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
@@ -128,6 +128,7 @@ def test_inversion_improves_the_objective(prior):
     assert ref.inversion.objective_start == pytest.approx(enc.inversion.objective, rel=1e-5)
     assert ref.inversion.objective < 0.9 * ref.inversion.objective_start
     assert ref.motion.skeleton.names == clip.skeleton.names and ref.motion.fps == clip.fps
+    assert ref.motion.num_frames == clip.num_frames
     pso = reconstruct(prior, clip, LatentOptions(overlap=8, pso_iters=3))
     assert pso.inversion.objective <= pso.inversion.objective_start + 1e-6
 
@@ -144,7 +145,9 @@ def test_infill_keeps_seen_frames_closer_than_unseen(prior):
     seen[: clip.num_frames // 2] = True
     r = infill(prior, clip, seen, LatentOptions(refine_iters=10))
     assert r.inversion.objective < r.inversion.objective_start
-    assert r.motion.num_frames > 0.9 * clip.num_frames
+    assert r.motion.num_frames == clip.num_frames
+    longer = complete(prior, clip, clip.num_frames // 2, clip.num_frames + 20)
+    assert longer.motion.num_frames == clip.num_frames + 20
 
 
 def test_semantic_direction_moves_the_score(prior):
