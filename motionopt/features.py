@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from . import rotations as R
-from .kinematics import fk
+from .kinematics import fk, fk_matrices
 from .motion import Motion
 from .skeleton import Skeleton
 
@@ -192,7 +192,13 @@ def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tu
 
 
 def decode(x: Tensor, spec: FeatureSpec, start: RootStart = RootStart()) -> tuple[Tensor, Tensor]:
-    """Local rotations (..., T, J, 4) and root positions (..., T, 3) from features (..., T, D).
+    """Local rotations (..., T, J, 4) and root positions (..., T, 3) from features (..., T, D)."""
+    mats, root = decode_matrices(x, spec, start)
+    return R.matrix_to_quat(mats), root
+
+
+def decode_matrices(x: Tensor, spec: FeatureSpec, start: RootStart = RootStart()) -> tuple[Tensor, Tensor]:
+    """Local rotation matrices (..., T, J, 3, 3) and root positions (..., T, 3) from features.
 
     Differentiable; the root is integrated from ``start`` (the state of the frame before
     ``x``; for a whole clip, frame 0 itself, whose deltas are zero) with a cumulative sum,
@@ -211,17 +217,17 @@ def decode(x: Tensor, spec: FeatureSpec, start: RootStart = RootStart()) -> tupl
          start.z + torch.cumsum(dzw, -1)),
         dim=-1,
     )
-    tilt = R.sixd_to_quat(x[..., s["root_tilt"]])
-    root_rot = R.quat_multiply(R.yaw_quat(yaw), tilt)
+    tilt = R.sixd_to_matrix(x[..., s["root_tilt"]])
+    root_rot = R.quat_to_matrix(R.yaw_quat(yaw)) @ tilt
     n_j = len(spec.joints) - 1
-    joints = R.sixd_to_quat(x[..., s["joint_rotations"]].reshape(*x.shape[:-1], n_j, 6))
-    return torch.cat((root_rot[..., None, :], joints), dim=-2), root
+    joints = R.sixd_to_matrix(x[..., s["joint_rotations"]].reshape(*x.shape[:-1], n_j, 6))
+    return torch.cat((root_rot[..., None, :, :], joints), dim=-3), root
 
 
 def decode_positions(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootStart = RootStart()) -> Tensor:
     """World joint positions (..., T, J, 3) of features, on the prior's skeleton."""
-    rot, root = decode(x, spec, start)
-    return fk(skeleton.parents, rot, root, torch.as_tensor(skeleton.offsets, dtype=x.dtype))
+    rot, root = decode_matrices(x, spec, start)
+    return fk_matrices(skeleton.parents, rot, root, torch.as_tensor(skeleton.offsets, dtype=x.dtype))
 
 
 def decode_motion(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootStart = RootStart(),
@@ -231,3 +237,54 @@ def decode_motion(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootS
         rot, root = decode(x.double(), spec, start)
     return Motion(skeleton, rot.numpy(), root.numpy(), spec.fps,
                   source_unit=like.source_unit if like is not None else "m")
+
+
+def advance(start: RootStart, x: Tensor, spec: FeatureSpec) -> RootStart:
+    """The root state after the (unnormalised) frames ``x (T, D)``, continuing from ``start``:
+    what decoding the next frames continues from."""
+    if len(x) == 0:
+        return start
+    with torch.no_grad():
+        yaw = start.yaw + float(x[:, spec.slices()["yaw_delta"]].double().sum())
+        _, root = decode(x.double(), spec, start)
+    return RootStart(yaw, float(root[-1, 0]), float(root[-1, 2]), start.ground)
+
+
+def to_file_motion(model: Motion, original: Motion) -> Motion:
+    """Put a motion on the prior's joints back on the original file's skeleton.
+
+    The result has the original's joints, channels, unit and frame rate (resampled from
+    the prior's rate). Modelled joints take the model's rotations; the joints the prior
+    leaves out (fingers, eyes) and any joints above the model root keep the original's
+    values, frame by frame, holding the last original frame beyond its end.
+    """
+    sk = original.skeleton
+    out = model.resample(original.fps)
+    n = out.num_frames
+    src = np.minimum(np.arange(n), original.num_frames - 1)
+    rotations = original.rotations[src].copy()
+    translations = original.local_translations()[src]
+    root_name = model.skeleton.names[0]
+    r = sk.index(root_name)
+    for j, name in enumerate(model.skeleton.names[1:], start=1):
+        rotations[:, sk.index(name)] = out.rotations[:, j]
+    # the model root's world transform, expressed under the original's joints above it
+    world_rot = torch.from_numpy(out.rotations[:, 0])
+    world_pos = torch.from_numpy(out.root)
+    if r == 0:
+        rotations[:, 0] = world_rot.numpy()
+        translations[:, 0] = world_pos.numpy()
+    else:
+        p = int(sk.parents[r])
+        _, grot = fk(sk.parents[:p + 1], torch.from_numpy(rotations[:, :p + 1]), torch.from_numpy(translations[:, 0]),
+                     torch.from_numpy(sk.offsets[:p + 1]), torch.from_numpy(translations[:, :p + 1]),
+                     return_global_rotations=True)
+        ppos = fk(sk.parents[:p + 1], torch.from_numpy(rotations[:, :p + 1]), torch.from_numpy(translations[:, 0]),
+                  torch.from_numpy(sk.offsets[:p + 1]), torch.from_numpy(translations[:, :p + 1]))
+        inv = R.quat_conjugate(grot[:, p])
+        rotations[:, r] = R.quat_multiply(inv, world_rot).numpy()
+        translations[:, r] = R.quat_apply(inv, world_pos - ppos[:, p]).numpy()
+    has_tr = original.translations is not None or r != 0
+    hint = original.euler_hint if n == original.num_frames else None
+    return Motion(sk, rotations, translations[:, 0].copy(), original.fps,
+                  translations=translations if has_tr else None, source_unit=original.source_unit, euler_hint=hint)

@@ -57,3 +57,41 @@ def fk(
     if return_global_rotations:
         return positions, torch.stack(g_rot, dim=-2)
     return positions
+
+
+def depth_levels(parents: np.ndarray | list[int]) -> list[tuple[list[int], list[int]]]:
+    """Joints grouped by depth below the root, each level with its parents: FK can then
+    process a whole level at once instead of one joint at a time."""
+    parents = [int(p) for p in parents]
+    depth = [0] * len(parents)
+    for j in range(1, len(parents)):
+        depth[j] = depth[parents[j]] + 1
+    levels = []
+    for d in range(1, max(depth, default=0) + 1):
+        joints = [j for j in range(len(parents)) if depth[j] == d]
+        levels.append((joints, [parents[j] for j in joints]))
+    return levels
+
+
+def fk_matrices(parents: np.ndarray | list[int], rotations: Tensor, root: Tensor, offsets: Tensor) -> Tensor:
+    """World joint positions (..., J, 3) from local rotation matrices (..., J, 3, 3).
+
+    The same numbers as ``fk`` with matrices, one level of the hierarchy at a time:
+    the fast path for solvers, which decode features to matrices anyway.
+    """
+    n_j = rotations.shape[-3]
+    lead = rotations.shape[:-3]
+    offsets = offsets.to(rotations.dtype).expand(*lead, n_j, 3)
+    g_rot = [None] * n_j
+    g_pos = [None] * n_j
+    g_rot[0] = rotations[..., 0, :, :]
+    g_pos[0] = root
+    for joints, pars in depth_levels(parents):
+        prot = torch.stack([g_rot[p] for p in pars], dim=-3)
+        ppos = torch.stack([g_pos[p] for p in pars], dim=-2)
+        pos = ppos + (prot @ offsets[..., joints, :, None])[..., 0]
+        rot = prot @ rotations[..., joints, :, :]
+        for k, j in enumerate(joints):
+            g_rot[j] = rot[..., k, :, :]
+            g_pos[j] = pos[..., k, :]
+    return torch.stack(g_pos, dim=-2)

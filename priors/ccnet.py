@@ -127,9 +127,11 @@ class CCNetPrior(nn.Module):
         return tuple(t.reshape(*lead, T, t.shape[-1]) for t in out)  # type: ignore[return-value]
 
     # ---- protocol ----------------------------------------------------------------------
-    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None,
-                         noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None,
+                         min_log_std: float | None = None) -> tuple[Tensor, Tensor]:
         mean, log_std, logits = self.gaussian(x, context, noise)
+        if min_log_std is not None:
+            log_std = log_std.clamp_min(min_log_std)
         z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std)
         return (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1), torch.sigmoid(logits)
 
@@ -141,16 +143,19 @@ class CCNetPrior(nn.Module):
 
     @torch.no_grad()
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
-               temperature: float = 1.0) -> Tensor:
+               temperature: float = 1.0, noise: Tensor | None = None) -> Tensor:
         flat, lead = self._flat(context)
+        if noise is not None:
+            noise = noise.reshape(-1, n_frames, self.spec.pose_dim)
         rf = self.receptive_field
         frames = flat
         p = self.spec.pose_dim
         new = []
         for _ in range(n_frames):
             mean, log_std, logits = self._predict(frames[:, -rf:])
-            noise = torch.randn(mean[:, -1].shape, generator=generator, dtype=mean.dtype, device=mean.device)
-            pose = mean[:, -1] + temperature * torch.exp(log_std[:, -1]) * noise
+            eps = noise[:, len(new)] if noise is not None else torch.randn(
+                mean[:, -1].shape, generator=generator, dtype=mean.dtype, device=mean.device)
+            pose = mean[:, -1] + temperature * torch.exp(log_std[:, -1]) * eps
             contacts = (logits[:, -1] > 0).to(pose)
             nxt = self.project(torch.cat((pose, contacts), dim=-1))
             new.append(nxt)

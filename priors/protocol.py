@@ -39,16 +39,23 @@ class MotionPrior(Protocol):
         the MAP formulation), not where they are scored.
         """
 
-    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None,
-                         noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """``nll`` and ``predict_contacts`` from one pass (what the solver calls)."""
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None,
+                         min_log_std: float | None = None) -> tuple[Tensor, Tensor]:
+        """``nll`` and ``predict_contacts`` from one pass (what the solver calls).
+
+        ``min_log_std`` floors the predictive log-std (normalised units): a tempered,
+        less stiff prior that optimisers can trade against task terms."""
 
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         """Probability (..., T, C) that each contact joint touches the ground at each frame."""
 
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
-               temperature: float = 1.0) -> Tensor:
-        """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``."""
+               temperature: float = 1.0, noise: Tensor | None = None) -> Tensor:
+        """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``.
+
+        ``noise (..., n_frames, P)``, when given, replaces the standard normal draws of the
+        pose dimensions (a rollout is then a deterministic function of it: what the
+        particle swarm searches over)."""
 
 
 @runtime_checkable

@@ -1,0 +1,328 @@
+"""The MAP objective: a prior term, an optional noise prior, and task terms.
+
+Every term is an object with a name, a sigma in user units (metres, radians, m/s) and a
+torch function of a decoded window (``WindowState``). Terms address frames by their
+global index in the output, so the same term serves every sliding window. Energies
+are negative log-likelihoods in nats: a Gaussian residual r with sigma s costs
+``r^2 / (2 s^2)``, summed over frames.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .features import FeatureSpec, RootStart, decode_matrices
+from .kinematics import fk_matrices
+from .rotations import quat_to_matrix
+from .skeleton import Skeleton
+
+
+class NonFiniteTermError(FloatingPointError):
+    """A term evaluated to NaN or infinity; names the term."""
+
+    def __init__(self, term: str, where: str = ""):
+        self.term = term
+        super().__init__(f"term {term!r} is not finite{(' ' + where) if where else ''}; "
+                         "check its targets and sigma for NaN, infinity or zero")
+
+
+@dataclass
+class WindowState:
+    """A decoded window of frames, batched over leading dims (e.g. PSO particles).
+
+    ``frames`` are the global indices of the window's frames; arrays of motion hold
+    ``lead`` extra frames before them (already solved context) so that velocities and
+    accelerations are defined at the window's first frame.
+    """
+
+    frames: np.ndarray
+    lead: int
+    x: Tensor                 # (..., T, D) normalised features of the window frames
+    noise: Tensor | None      # (..., T, D) input noise d, or None
+    rotations: Tensor         # (..., lead+T, J, 3, 3) local rotation matrices
+    root: Tensor              # (..., lead+T, 3)
+    positions: Tensor         # (..., lead+T, J, 3) world joint positions
+    contacts: Tensor          # (..., T, C) contact probabilities predicted by the prior (no gradient)
+    prior_nll: Tensor         # (..., T) per-frame NLL under the prior
+    fps: float
+
+
+class Term:
+    """Base class: ``energy(state)`` returns (...,) nats for the batch of windows."""
+
+    name: str = "term"
+
+    def energy(self, state: WindowState) -> Tensor:
+        raise NotImplementedError
+
+    def active(self, frames: np.ndarray) -> bool:
+        """Whether the term has anything to say about these frames (skip it otherwise)."""
+        return True
+
+
+def _gaussian(residual_sq: Tensor, sigma: float) -> Tensor:
+    return residual_sq / (2.0 * sigma * sigma)
+
+
+def _frame_mask(frames: np.ndarray, mask: np.ndarray | None, device=None) -> Tensor | None:
+    if mask is None:
+        return None
+    inside = frames < len(mask)
+    m = np.zeros(len(frames), bool)
+    m[inside] = mask[frames[inside]]
+    return torch.from_numpy(m)
+
+
+def matrix_angle_sq(a: Tensor, b: Tensor) -> Tensor:
+    """Smooth squared geodesic angle (radians^2) between rotation matrices (..., 3, 3):
+    ||A - B||_F^2 / 2 = 2 (1 - cos angle), exact to second order and free of arccos's
+    infinite slope at zero."""
+    return 0.5 * (a - b).pow(2).sum((-1, -2))
+
+
+@dataclass
+class PriorTerm(Term):
+    """Negative log-likelihood of the window under the prior, times ``weight``."""
+
+    weight: float = 1.0
+    name: str = "prior"
+
+    def energy(self, state: WindowState) -> Tensor:
+        return self.weight * state.prior_nll.sum(-1)
+
+
+@dataclass
+class NoisePrior(Term):
+    """Gaussian prior on the prior's input noise d (sigma in normalised feature units)."""
+
+    sigma: float = 0.05
+    name: str = "noise"
+
+    def energy(self, state: WindowState) -> Tensor:
+        if state.noise is None:
+            return state.x.new_zeros(state.x.shape[:-2])
+        return _gaussian(state.noise.pow(2), self.sigma).sum((-1, -2))
+
+
+@dataclass
+class PathTerm(Term):
+    """Root on the ground plane close to a polyline path.
+
+    With ``targets`` (N, 2) per global frame (timed mode) each frame is pulled to its own
+    point; without, to the nearest point of the polyline (the MAP path term of
+    Wang et al. 2019, eq. 18). ``frames`` limits which global frames count.
+    """
+
+    path: np.ndarray
+    sigma: float = 0.05
+    targets: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    name: str = "path"
+
+    def __post_init__(self) -> None:
+        self.path = np.asarray(self.path, dtype=np.float64)
+        if self.path.ndim != 2 or self.path.shape[1] != 2 or len(self.path) < 2:
+            raise ValueError(f"a path needs at least 2 points of (x, z); got shape {self.path.shape}")
+
+    def active(self, frames: np.ndarray) -> bool:
+        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
+
+    def energy(self, state: WindowState) -> Tensor:
+        xz = state.root[..., state.lead:, [0, 2]]
+        if self.targets is not None:
+            idx = np.minimum(state.frames, len(self.targets) - 1)
+            target = torch.as_tensor(self.targets[idx], dtype=xz.dtype)
+            d2 = (xz - target).pow(2).sum(-1)
+        else:
+            d2 = nearest_on_polyline_sq(xz, torch.as_tensor(self.path, dtype=xz.dtype))
+        m = _frame_mask(state.frames, self.mask)
+        if m is not None:
+            d2 = d2 * m.to(d2)
+        return _gaussian(d2, self.sigma).sum(-1)
+
+
+def nearest_on_polyline_sq(points: Tensor, path: Tensor) -> Tensor:
+    """Squared distance (...,) from points (..., 2) to the nearest point of a polyline (N, 2)."""
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    ap = points[..., None, :] - a
+    t = ((ap * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)
+    closest = a + t[..., None] * ab
+    return (points[..., None, :] - closest).pow(2).sum(-1).min(-1).values
+
+
+@dataclass
+class PoseFidelityTerm(Term):
+    """Root position and local joint rotations close to a target motion.
+
+    ``root`` (N, 3) and ``rotations`` (N, J, 4) quaternions are targets per global frame; ``mask``
+    (N,) selects frames (e.g. only the noisy input's frames, or keyframes); ``joints``
+    selects which joints' rotations count (default all but the root, whose rotation
+    counts as well unless ``root_rotation`` is False).
+    """
+
+    root: np.ndarray | None
+    rotations: np.ndarray | None
+    sigma_root: float = 0.02
+    sigma_angle: float = 0.05
+    mask: np.ndarray | None = None
+    joints: list[int] | None = None
+    name: str = "fidelity"
+
+    def __post_init__(self) -> None:
+        self._mats = None if self.rotations is None else quat_to_matrix(
+            torch.as_tensor(np.asarray(self.rotations), dtype=torch.float64)).float()
+
+    def active(self, frames: np.ndarray) -> bool:
+        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
+
+    def energy(self, state: WindowState) -> Tensor:
+        n = len(self.root) if self.root is not None else len(self.rotations)
+        idx = np.minimum(state.frames, n - 1)
+        e = state.x.new_zeros(state.x.shape[:-1])
+        if self.root is not None:
+            target = torch.as_tensor(self.root[idx], dtype=e.dtype)
+            e = e + _gaussian((state.root[..., state.lead:, :] - target).pow(2).sum(-1), self.sigma_root)
+        if self._mats is not None:
+            rot = state.rotations[..., state.lead:, :, :, :]
+            target = self._mats[idx].to(e.dtype)
+            if self.joints is not None:
+                rot, target = rot[..., self.joints, :, :], target[..., self.joints, :, :]
+            e = e + _gaussian(matrix_angle_sq(rot, target), self.sigma_angle).sum(-1)
+        m = _frame_mask(state.frames, self.mask)
+        if m is not None:
+            e = e * m.to(e)
+        return e.sum(-1)
+
+
+@dataclass
+class JointPositionTerm(Term):
+    """World position targets for one joint at chosen global frames.
+
+    ``targets`` maps a frame index to an (x, y, z) target in metres. With ``hard`` the
+    solver treats the targets as equality constraints (nlopt) instead of a penalty.
+    """
+
+    joint: int
+    targets: dict[int, np.ndarray]
+    sigma: float = 0.01
+    hard: bool = False
+    name: str = "joint_position"
+
+    def active(self, frames: np.ndarray) -> bool:
+        return any(int(f) in self.targets for f in frames)
+
+    def residuals(self, state: WindowState) -> Tensor:
+        """(..., K, 3) position errors at the target frames inside the window."""
+        local = [i for i, f in enumerate(state.frames) if int(f) in self.targets]
+        if not local:
+            return state.positions.new_zeros(*state.positions.shape[:-3], 0, 3)
+        p = state.positions[..., [state.lead + i for i in local], self.joint, :]
+        tgt = torch.as_tensor(np.stack([self.targets[int(state.frames[i])] for i in local]), dtype=p.dtype)
+        return p - tgt
+
+    def energy(self, state: WindowState) -> Tensor:
+        return _gaussian(self.residuals(state).pow(2).sum(-1), self.sigma).sum(-1)
+
+
+def keyframe_term(frames: np.ndarray, root: np.ndarray, rotations: np.ndarray,
+                  sigma_root: float = 0.005, sigma_angle: float = 0.01) -> PoseFidelityTerm:
+    """Pose and root targets at keyframes: a fidelity term restricted to those frames."""
+    mask = np.zeros(len(root), bool)
+    mask[frames] = True
+    return PoseFidelityTerm(root, rotations, sigma_root, sigma_angle, mask=mask, name="keyframes")
+
+
+@dataclass
+class ContactTerm(Term):
+    """Feet that the prior says are on the ground do not slide and rest at their planted
+    height: horizontal speed with sigma ``sigma_speed`` (m/s), height error with sigma
+    ``sigma_height`` (m), weighted by the prior's contact probability."""
+
+    joints: list[int]
+    planted_height: np.ndarray
+    sigma_speed: float = 0.05
+    sigma_height: float = 0.02
+    threshold: float = 0.5
+    name: str = "contact"
+
+    def energy(self, state: WindowState) -> Tensor:
+        p = state.positions[..., self.joints, :]
+        step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
+        if state.lead == 0:  # the very first frame has no velocity
+            step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
+        speed_sq = step[..., -state.frames.shape[0]:, :, :].pow(2).sum(-1)
+        height = p[..., state.lead:, :, 1] - torch.as_tensor(self.planted_height, dtype=p.dtype)
+        w = (state.contacts > self.threshold).to(p)
+        e = w * (_gaussian(speed_sq, self.sigma_speed) + _gaussian(height.pow(2), self.sigma_height))
+        return e.sum((-1, -2))
+
+
+@dataclass
+class SmoothnessTerm(Term):
+    """Joint accelerations (m/s^2) small, with sigma ``sigma``; uses the solved frames
+    before the window so that the window's start is smooth too."""
+
+    sigma: float = 30.0
+    name: str = "smoothness"
+
+    def energy(self, state: WindowState) -> Tensor:
+        p = state.positions[..., max(state.lead - 2, 0):, :, :]
+        acc = (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * state.fps ** 2
+        return _gaussian(acc.pow(2).sum(-1), self.sigma).sum((-1, -2))
+
+
+@dataclass
+class MAPObjective:
+    """Prior + noise prior + task terms over normalised features of a model skeleton.
+
+    ``prior_min_log_std`` floors the prior's predictive log-std (normalised units): the
+    trained prior is very confident about the next frame, which makes the energy too
+    stiff for task terms to move it; a floor of -2.5 keeps it natural but pliable.
+    """
+
+    prior: object
+    skeleton: Skeleton
+    terms: list[Term] = field(default_factory=list)
+    prior_weight: float = 1.0
+    noise_sigma: float | None = None
+    prior_min_log_std: float | None = -2.5
+
+    def __post_init__(self) -> None:
+        self.spec: FeatureSpec = self.prior.spec
+        self.prior_term = PriorTerm(self.prior_weight)
+        self.noise_term = NoisePrior(self.noise_sigma) if self.noise_sigma else None
+        self._offsets = torch.as_tensor(self.skeleton.offsets, dtype=torch.float32)
+
+    def all_terms(self) -> list[Term]:
+        return [self.prior_term] + ([self.noise_term] if self.noise_term else []) + list(self.terms)
+
+    def window_state(self, x: Tensor, frames: np.ndarray, context: Tensor, lead_raw: Tensor,
+                     start: RootStart, noise: Tensor | None = None) -> WindowState:
+        """Decode a (batch of) window(s) ``x (..., T, D)`` after ``context (C, D)``.
+
+        ``lead_raw`` holds the last solved frames (unnormalised, (L, D)) before the
+        window, decoded together with it from ``start`` (the state before them).
+        """
+        norm = self.prior.normalizer
+        nll, contacts = self.prior.nll_and_contacts(x, context, noise, self.prior_min_log_std)
+        if context.shape[-2] == 0:
+            # the sequence's first frame has no history: the prior has nothing to say about it
+            nll = torch.cat((torch.zeros_like(nll[..., :1]), nll[..., 1:]), dim=-1)
+        raw = norm.denormalize(x)
+        lead = lead_raw.to(raw).expand(*raw.shape[:-2], *lead_raw.shape)
+        rot, root = decode_matrices(torch.cat((lead, raw), dim=-2), self.spec, start)
+        pos = fk_matrices(self.skeleton.parents, rot, root, self._offsets.to(x.dtype))
+        return WindowState(frames, lead_raw.shape[0], x, noise, rot, root, pos, contacts.detach(), nll,
+                           self.spec.fps)
+
+    def energies(self, state: WindowState) -> dict[str, Tensor]:
+        """Every active term's energy (...,) for the window."""
+        out = {}
+        for term in self.all_terms():
+            if term.active(state.frames):
+                out[term.name] = term.energy(state)
+        return out

@@ -1,0 +1,531 @@
+"""MAP solver: particle swarm initialisation, then L-BFGS over sliding windows.
+
+``solve(objective, problem_frames, options)`` optimises the normalised features of the
+free frames of a sequence, window by window (B frames, overlap b). Each window is
+conditioned on the solved frames before it; its overlap starts from the previous
+window's solution and its new frames from a rollout of the prior. The call and the
+result are shaped like ``scipy.optimize.minimize``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from . import rotations as R
+from .features import RootStart, advance
+from .objective import JointPositionTerm, MAPObjective, NonFiniteTermError, WindowState
+
+log = logging.getLogger(__name__)
+
+METHODS = ("scipy", "nlopt", "torch", "adam")
+#: Cosine components over a window added to the per-frame variables (see ``_Window``).
+BASIS_SIZE = 8
+
+
+class StopSolve(Exception):
+    """Raised by a callback (or returned True) to stop the run; the best iterate is kept."""
+
+
+@dataclass
+class PSOOptions:
+    """Particle swarm on a low-dimensional parametrisation: ``n_coeffs`` DCT coefficients
+    (over the window's new frames) of offsets to the root displacement and yaw-change
+    features, i.e. ``3 * n_coeffs`` dimensions, never the full pose of every frame."""
+
+    particles: int = 12
+    iterations: int = 4
+    n_coeffs: int = 3
+    bound: float = 1.5
+    c1: float = 0.5
+    c2: float = 0.3
+    w: float = 0.7
+
+
+@dataclass
+class SolverOptions:
+    """How to solve. ``method`` is the local optimiser: 'scipy' (L-BFGS-B), 'nlopt'
+    (LD_LBFGS; with hard constraints, AUGLAG_EQ around it), 'torch' (torch.optim.LBFGS)
+    or 'adam' (plain first-order baseline)."""
+
+    window: int = 34
+    overlap: int = 17
+    method: str = "scipy"
+    max_iter: int = 40
+    ftol: float = 1e-7
+    gtol: float = 1e-5
+    history: int = 10
+    pso: PSOOptions | None = field(default_factory=PSOOptions)
+    temperature: float = 0.3
+    seed: int = 0
+    adam_lr: float = 0.02
+    time_budget: float | None = None  # seconds per window for 'adam'
+    callback: Callable[[dict], bool | None] | None = None
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if not 0 <= self.overlap < self.window:
+            raise ValueError(f"overlap must be in [0, window): got window {self.window}, overlap {self.overlap}")
+
+
+@dataclass
+class MAPResult:
+    """What ``solve`` returns; shaped like scipy's OptimizeResult."""
+
+    x: Tensor                       # (N, D) normalised features of the whole sequence
+    fun: float                      # objective at the end, summed over windows
+    fun_start: float                # objective at each window's initialisation, summed
+    terms_start: dict[str, float]
+    terms: dict[str, float]
+    nit: int
+    nfev: int
+    success: bool
+    message: str
+    warnings: list[str]
+    timings: dict[str, float]
+    windows: list[dict]
+    seam: dict[str, float] = field(default_factory=dict)
+
+    def __getitem__(self, key: str):
+        return getattr(self, key)
+
+
+@dataclass
+class Problem:
+    """The sequence to solve: ``x0 (N, D)`` normalised features (NaN rows where nothing
+    is known yet: those frames are rolled out from the prior), ``free (N,)`` frames the
+    solver may change, and the root state before frame 0."""
+
+    x0: Tensor
+    free: np.ndarray
+    start: RootStart
+
+
+def _dct_basis(n: int, k: int) -> Tensor:
+    t = torch.arange(n, dtype=torch.float32)
+    rows = [torch.cos(math.pi * (t + 0.5) * j / n) for j in range(k)]
+    return torch.stack(rows)  # (k, n)
+
+
+class _Window:
+    """One window's optimisation.
+
+    Variables per free frame: offsets to the four root features (normalised units) and a
+    rotation vector (radians) per joint applied to the frame's starting rotation, so
+    every iterate holds valid rotations (never a 6D vector off the rotation manifold the
+    prior was trained on); plus the prior's input noise when the objective has one.
+    The offsets are the sum of a per-frame part and a few cosine (DCT) components over
+    the window: a gradient step on those moves many frames together, which the prior's
+    stiff coupling between neighbouring frames otherwise makes L-BFGS do very slowly.
+    """
+
+    def __init__(self, objective: MAPObjective, x: Tensor, frames: np.ndarray, free_local: np.ndarray,
+                 context: Tensor, lead_raw: Tensor, start: RootStart, with_noise: bool):
+        self.obj = objective
+        self.x = x.clone()
+        self.frames = frames
+        self.free = torch.from_numpy(free_local)
+        self.context = context
+        self.lead_raw = lead_raw
+        self.start = start
+        self.p = objective.spec.pose_dim
+        self.n_rot = len(objective.spec.joints)
+        self.k = 4 + 3 * self.n_rot
+        self.with_noise = with_noise
+        self.n_free = int(free_local.sum())
+        self.n_basis = min(BASIS_SIZE, self.n_free)
+        self.basis = _dct_basis(self.n_free, self.n_basis).T if self.n_free else torch.zeros(0, 0)  # (n_free, K)
+        self.n_vars = (self.n_basis + self.n_free) * self.k
+        self.size = self.n_vars + (self.n_free * self.p if with_noise else 0)
+        self.nfev = 0
+        self.prior_seconds = 0.0
+        self.best = (math.inf, None)
+        self.hard = [t for t in objective.terms if isinstance(t, JointPositionTerm) and t.hard and t.active(frames)]
+        self._base_rot: Tensor | None = None
+
+    # --- variables <-> window tensors -------------------------------------------------
+    def rebase(self) -> None:
+        """Take the current window frames as the point that zero variables stand for."""
+        norm = self.obj.prior.normalizer
+        raw = norm.denormalize(self.x[self.free].double())
+        self._base_rot = R.sixd_to_matrix(raw[:, 4:self.p].reshape(self.n_free, self.n_rot, 6)).float()
+        self.best = (math.inf, None)
+
+    def pack(self) -> np.ndarray:
+        """The variables of the current base: all zeros."""
+        return np.zeros(self.size)
+
+    def unpack(self, v: Tensor) -> tuple[Tensor, Tensor | None]:
+        if self._base_rot is None:
+            self.rebase()
+        lead = v.shape[:-1]
+        nk = self.n_vars
+        coarse = v[..., :self.n_basis * self.k].reshape(*lead, self.n_basis, self.k)
+        u = v[..., self.n_basis * self.k:nk].reshape(*lead, self.n_free, self.k) + self.basis @ coarse
+        x = self.x.expand(*lead, *self.x.shape).clone()
+        omega = u[..., 4:].reshape(*lead, self.n_free, self.n_rot, 3)
+        mats = self._base_rot @ R.axis_angle_to_matrix(omega)
+        norm = self.obj.prior.normalizer
+        six = R.matrix_to_6d(mats).reshape(*lead, self.n_free, 6 * self.n_rot)
+        mean, std = norm.mean[4:self.p].to(v), norm.std[4:self.p].to(v)
+        x[..., self.free, 4:self.p] = (six - mean) / std
+        x[..., self.free, :4] = self.x[self.free, :4] + u[..., :4]
+        noise = None
+        if self.with_noise:
+            noise = torch.zeros_like(x)
+            noise[..., self.free, :self.p] = v[..., nk:].reshape(*lead, self.n_free, self.p)
+        return x, noise
+
+    def state(self, v: Tensor) -> WindowState:
+        x, noise = self.unpack(v)
+        t0 = time.perf_counter()
+        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, noise)
+        self.prior_seconds += time.perf_counter() - t0
+        return st
+
+    def energies(self, v: Tensor) -> dict[str, Tensor]:
+        st = self.state(v)
+        e = self.obj.energies(st)
+        for term in self.hard:
+            e.pop(term.name, None)
+        return e
+
+    # --- scalar objective with gradient -----------------------------------------------
+    def fun(self, v_np: np.ndarray) -> tuple[float, np.ndarray]:
+        v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
+        e = self.energies(v)
+        for name, val in e.items():
+            if not torch.isfinite(val).all():
+                raise NonFiniteTermError(name, f"in frames {self.frames[0]}-{self.frames[-1]}")
+        total = sum(e.values())
+        total.backward()
+        self.nfev += 1
+        f = float(total.detach())
+        g = v.grad.double().numpy()
+        if not np.isfinite(g).all():
+            raise NonFiniteTermError("gradient", f"in frames {self.frames[0]}-{self.frames[-1]}")
+        if f < self.best[0]:
+            self.best = (f, v_np.copy())
+        return f, g
+
+    def values(self, v_np: np.ndarray) -> dict[str, float]:
+        with torch.no_grad():
+            return {k: float(t) for k, t in self.energies(torch.tensor(v_np, dtype=torch.float32)).items()}
+
+    def constraint_residuals(self, v_np: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hard constraint residuals (m,) and their Jacobian (m, n)."""
+        v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
+        st = self.state(v)
+        r = torch.cat([t.residuals(st).reshape(-1) for t in self.hard])
+        jac = torch.stack([torch.autograd.grad(ri, v, retain_graph=True)[0] for ri in r]) if len(r) else torch.zeros(0, len(v))
+        return r.detach().double().numpy(), jac.double().numpy()
+
+
+def _pso_rollout(win: "_Window", prior, context: Tensor, first: int, unknown: Tensor, base_noise: Tensor,
+                 opts: PSOOptions, temperature: float, seed: int) -> tuple[Tensor, float, int]:
+    """Particle swarm over the prior's sampling noise of the window's new frames.
+
+    A particle is ``3 * n_coeffs`` DCT coefficients added to the standard normal draws of
+    the root displacement and yaw-change features (``base_noise`` elsewhere), so each
+    particle is a whole coherent rollout from window frame ``first``, used where
+    ``unknown``; its cost is the window objective. Returns the
+    best rollout (n_new, D), its cost and the number of evaluations.
+    """
+    import pyswarms as ps
+
+    n_new = base_noise.shape[0]
+    basis = _dct_basis(n_new, opts.n_coeffs)
+    dims = 3 * opts.n_coeffs
+    cache: dict[bytes, tuple[Tensor, float]] = {}
+
+    def rollouts(c: Tensor) -> Tensor:
+        coef = c.reshape(len(c), 3, opts.n_coeffs)
+        eps = base_noise.expand(len(c), -1, -1).clone()
+        eps[..., :3] = eps[..., :3] + torch.einsum("pck,kn->pnc", coef, basis)
+        ctx = context.expand(len(c), *context.shape)
+        return prior.sample(ctx, n_new, temperature=temperature, noise=eps)
+
+    def cost(c: np.ndarray) -> np.ndarray:
+        roll = rollouts(torch.from_numpy(c).float())
+        xw = win.x.expand(len(c), *win.x.shape).clone()
+        xw[:, first:] = torch.where(unknown[:, None], roll, xw[:, first:])
+        with torch.no_grad():
+            st = win.obj.window_state(xw, win.frames, win.context, win.lead_raw, win.start)
+            total = sum(win.obj.energies(st).values())
+        total = torch.nan_to_num(total, nan=1e30, posinf=1e30)
+        i = int(total.argmin())
+        best = cache.get("best")
+        if best is None or float(total[i]) < best[1]:
+            cache["best"] = (roll[i], float(total[i]))
+        return total.double().numpy()
+
+    rng = np.random.default_rng(seed)
+    init = rng.uniform(-opts.bound, opts.bound, (opts.particles, dims)) * 0.5
+    init[0] = 0.0  # one particle is the plain rollout
+    np.random.seed(seed)  # pyswarms draws its velocities from numpy's global generator
+    optimizer = ps.single.GlobalBestPSO(n_particles=opts.particles, dimensions=dims,
+                                        options={"c1": opts.c1, "c2": opts.c2, "w": opts.w},
+                                        bounds=(np.full(dims, -opts.bound), np.full(dims, opts.bound)),
+                                        init_pos=init)
+    optimizer.optimize(cost, iters=opts.iterations, verbose=False)
+    roll, f = cache["best"]
+    return roll, f, opts.particles * opts.iterations
+
+
+def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callable[[np.ndarray], bool]) -> tuple[np.ndarray, int, bool, str]:
+    """Run the chosen local optimiser from v0; returns (v, iterations, success, message)."""
+    if opts.method == "scipy":
+        from scipy.optimize import minimize
+
+        def cb(intermediate_result):
+            if stop(intermediate_result.x):
+                raise StopIteration
+
+        r = minimize(win.fun, v0, jac=True, method="L-BFGS-B", callback=cb,
+                     options={"maxiter": opts.max_iter, "ftol": opts.ftol, "gtol": opts.gtol, "maxcor": opts.history})
+        if r.status == 99:
+            return win.best[1], int(r.nit), True, "stopped by callback"
+        # status 1 is the iteration limit, which windowed solving uses on purpose
+        return r.x, int(r.nit), r.status in (0, 1), str(r.message)
+    if opts.method == "nlopt":
+        import nlopt
+
+        n = len(v0)
+        it = [0]
+        local = nlopt.opt(nlopt.LD_LBFGS, n)
+        local.set_vector_storage(opts.history)
+
+        def f(v, grad):
+            val, g = win.fun(v)
+            if grad.size > 0:
+                grad[:] = g
+            it[0] += 1
+            if stop(v):
+                raise nlopt.ForcedStop
+            return val
+
+        if win.hard:
+            opt = nlopt.opt(nlopt.AUGLAG_EQ, n)
+            local.set_ftol_rel(opts.ftol)
+            opt.set_local_optimizer(local)
+
+            def h(result, v, grad):
+                r, jac = win.constraint_residuals(v)
+                result[:] = r
+                if grad.size > 0:
+                    grad[:] = jac
+
+            m = sum(len(t.residuals(win.state(torch.from_numpy(v0).float()))) * 3 for t in win.hard)
+            opt.add_equality_mconstraint(h, np.full(m, 1e-4))
+            opt.set_maxeval(opts.max_iter * 5)
+        else:
+            opt = local
+            opt.set_maxeval(opts.max_iter)
+        opt.set_min_objective(f)
+        opt.set_ftol_rel(opts.ftol)
+        try:
+            v = opt.optimize(v0.copy())
+            return v, it[0], True, f"nlopt result code {opt.last_optimize_result()}"
+        except nlopt.ForcedStop:
+            return win.best[1] if win.best[1] is not None else v0, it[0], True, "stopped by callback"
+        except (nlopt.RoundoffLimited, RuntimeError, ValueError) as e:
+            if isinstance(e, NonFiniteTermError):
+                raise
+            best = win.best[1] if win.best[1] is not None else v0
+            return best, it[0], False, f"nlopt failed ({type(e).__name__}: {e}); kept the best iterate"
+    # torch-native paths
+    v = torch.tensor(v0, dtype=torch.float32, requires_grad=True)
+    if opts.method == "torch":
+        opt = torch.optim.LBFGS([v], lr=1.0, max_iter=opts.max_iter, history_size=opts.history,
+                                tolerance_change=opts.ftol, tolerance_grad=opts.gtol, line_search_fn="strong_wolfe")
+
+        def closure():
+            opt.zero_grad()
+            val, g = win.fun(v.detach().double().numpy())
+            v.grad = torch.from_numpy(g).float()
+            return torch.tensor(val)
+
+        opt.step(closure)
+        n_iter = opt.state[opt._params[0]].get("n_iter", 0)
+        return v.detach().double().numpy(), int(n_iter), True, "torch L-BFGS finished"
+    opt = torch.optim.Adam([v], lr=opts.adam_lr)
+    t0, it = time.perf_counter(), 0
+    while it < opts.max_iter * 5 and (opts.time_budget is None or time.perf_counter() - t0 < opts.time_budget):
+        opt.zero_grad()
+        _, g = win.fun(v.detach().double().numpy())
+        v.grad = torch.from_numpy(g).float()
+        opt.step()
+        it += 1
+        if stop(v.detach().double().numpy()):
+            break
+    return win.best[1], it, True, "adam finished"
+
+
+def window_starts(free: np.ndarray, window: int, overlap: int) -> list[int]:
+    """Start frames of the windows that cover every free frame, stepping by window - overlap."""
+    idx = np.nonzero(free)[0]
+    if len(idx) == 0:
+        return []
+    starts, s = [], int(idx[0])
+    step = window - overlap
+    while True:
+        starts.append(s)
+        if s + window > idx[-1]:
+            break
+        s += step
+        nxt = idx[idx >= s]
+        s = int(nxt[0]) if len(nxt) and nxt[0] > s + window else s
+    return starts
+
+
+def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = SolverOptions()) -> MAPResult:
+    """Solve the MAP problem window by window; see the module docstring."""
+    prior, spec = objective.prior, objective.spec
+    norm = prior.normalizer
+    opts = options
+    x = problem.x0.clone().float()
+    n, d = x.shape
+    free = np.asarray(problem.free, bool)
+    known = ~torch.isnan(x).any(-1).numpy()
+    rf = prior.receptive_field
+    p = spec.pose_dim
+    starts = window_starts(free, opts.window, opts.overlap)
+    t_total = time.perf_counter()
+    timings = {"pso": 0.0, "lbfgs": 0.0, "prior": 0.0, "rollout": 0.0}
+    terms_start: dict[str, float] = {}
+    terms_end: dict[str, float] = {}
+    nit = nfev = 0
+    messages: list[str] = []
+    warns: list[str] = []
+    windows: list[dict] = []
+    success = True
+    committed = 0                      # frames [0, committed) are final
+    root_state = problem.start         # state before frame `committed`
+    lead_n = 2
+    stopped = False
+    for w_i, s in enumerate(starts):
+        e = min(s + opts.window, n)
+        frames = np.arange(s, e)
+        # advance the root state up to the frame before the lead frames
+        lead_from = max(s - lead_n, 0)
+        if lead_from > committed:
+            root_state = advance(root_state, norm.denormalize(x[committed:lead_from].double()), spec)
+            committed = lead_from
+        lead_raw = norm.denormalize(x[committed:s].double()).float()
+        context = x[max(0, s - rf):s]
+        free_local = free[s:e]
+        win = _Window(objective, x[s:e], frames, free_local, context, lead_raw, root_state,
+                      with_noise=objective.noise_term is not None)
+        if win.size == 0:
+            continue
+        # new frames: a rollout of the prior, steered by the particle swarm when enabled
+        unknown = np.nonzero(~known[s:e])[0]
+        info: dict = {"frames": (int(s), int(e))}
+        pso_evals = 0
+        if len(unknown):
+            first = int(unknown[0])
+            ctx = x[max(0, s + first - rf):s + first]
+            if len(ctx) == 0:
+                raise ValueError("the first frame to synthesise has no context: give at least one known frame before it")
+            fill = torch.from_numpy(~known[s + first:e])
+            gen = torch.Generator().manual_seed(opts.seed * 100003 + w_i)
+            base = torch.randn(e - s - first, p, generator=gen)
+            t0 = time.perf_counter()
+            if opts.pso is not None:
+                roll, info["fun_pso"], pso_evals = _pso_rollout(win, prior, ctx, first, fill, base, opts.pso,
+                                                                opts.temperature, opts.seed * 7919 + w_i)
+                timings["pso"] += time.perf_counter() - t0
+            else:
+                roll = prior.sample(ctx, e - s - first, temperature=opts.temperature, noise=base)
+                timings["rollout"] += time.perf_counter() - t0
+            win.x[first:] = torch.where(fill[:, None], roll, win.x[first:])
+            x[s:e] = win.x
+            known[s + first:e] = True
+        win.rebase()
+        v0 = win.pack()
+        start_vals = win.values(v0)
+        for k, v in start_vals.items():
+            terms_start[k] = terms_start.get(k, 0.0) + v
+        info["fun_start"] = sum(start_vals.values())
+
+        def stop(v: np.ndarray) -> bool:
+            if opts.callback is None:
+                return False
+            return bool(opts.callback({"window": w_i, "frames": (int(s), int(e)), "x": v, "best": win.best[0]}))
+
+        t0 = time.perf_counter()
+        try:
+            v, it, ok, msg = _local_solve(win, v0, opts, stop)
+        except StopIteration:
+            v, it, ok, msg = win.best[1], 0, True, "stopped by callback"
+        except NonFiniteTermError as err:
+            v = win.best[1] if win.best[1] is not None else v0
+            it, ok, msg = 0, False, str(err)
+            warns.append(f"window {w_i} (frames {s}-{e - 1}): {err}; kept the best iterate")
+        timings["lbfgs"] += time.perf_counter() - t0
+        end_vals = win.values(v)
+        f_end = sum(end_vals.values())
+        if win.best[1] is not None and win.best[0] < f_end - 1e-6 * abs(f_end):
+            warns.append(f"window {w_i}: the optimiser ended above its best iterate; kept the best")
+            v = win.best[1]
+            end_vals = win.values(v)
+        if "stopped by callback" in msg:
+            stopped = True
+        timings["prior"] += win.prior_seconds
+        nit += it
+        nfev += win.nfev + pso_evals
+        success &= ok
+        if not ok:
+            messages.append(f"window {w_i}: {msg}")
+        # write the window back, with contacts predicted by the prior
+        xw, _ = win.unpack(torch.from_numpy(v).float())
+        with torch.no_grad():
+            _, probs = prior.nll_and_contacts(xw, context)
+        xw[:, p:] = torch.where(torch.from_numpy(free_local)[:, None], (probs > 0.5).float(), xw[:, p:])
+        x[s:e] = xw
+        for k, val in end_vals.items():
+            terms_end[k] = terms_end.get(k, 0.0) + val
+        info.update(fun=sum(end_vals.values()), nit=it, nfev=win.nfev, message=msg)
+        windows.append(info)
+        if opts.progress:
+            log.info("window %d/%d frames %d-%d: %.1f -> %.1f", w_i + 1, len(starts), s, e - 1, f_start, info["fun"])
+        if stopped:
+            messages.append("stopped by callback")
+            break
+    timings["total"] = time.perf_counter() - t_total
+    seam = seam_report(objective, x, problem.start, [w["frames"][0] for w in windows])
+    return MAPResult(
+        x=x, fun=sum(terms_end.values()), fun_start=sum(terms_start.values()), terms_start=terms_start,
+        terms=terms_end, nit=nit, nfev=nfev, success=success and not stopped,
+        message="; ".join(messages) if messages else "converged in every window",
+        warnings=warns, timings=timings, windows=windows, seam=seam,
+    )
+
+
+@torch.no_grad()
+def seam_report(objective: MAPObjective, x: Tensor, start: RootStart, boundaries: list[int]) -> dict[str, float]:
+    """Largest mean joint acceleration (m/s^2) at window boundaries against inner frames'."""
+    from .features import decode_positions
+
+    if len(boundaries) < 2:
+        return {}
+    raw = objective.prior.normalizer.denormalize(x.double())
+    pos = decode_positions(raw, objective.spec, objective.skeleton, start)
+    acc = ((pos[2:] - 2 * pos[1:-1] + pos[:-2]) * objective.spec.fps ** 2).norm(dim=-1).mean(-1).numpy()
+    at = np.zeros(len(acc), bool)
+    for b in boundaries[1:]:
+        at[max(b - 2, 0):min(b + 1, len(acc))] = True
+    if at.all() or not at.any():
+        return {}
+    return {"boundary_max_acc": float(acc[at].max()), "inner_max_acc": float(acc[~at].max()),
+            "inner_p99_acc": float(np.percentile(acc[~at], 99)),
+            "ratio": float(acc[at].max() / max(acc[~at].max(), 1e-9))}

@@ -1,0 +1,124 @@
+"""What every editing task shares: preparing the input for a prior, the standard terms,
+decoding the solution back onto the user's skeleton, and the result object."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from motionopt.features import (RootStart, decode_motion, encode, estimate_ground, to_file_motion,
+                                to_model_motion)
+from motionopt.motion import Motion
+from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
+from motionopt.solver import MAPResult, Problem, SolverOptions, solve
+from priors.checkpoint import check_compatible
+
+
+@dataclass
+class Prepared:
+    """A user's motion as the prior sees it."""
+
+    original: Motion
+    model: Motion
+    raw: torch.Tensor          # (T, D) unnormalised features
+    x: torch.Tensor            # (T, D) normalised features
+    start: RootStart
+    planted_height: np.ndarray  # (C,) height of each contact joint when planted (world y, metres)
+
+
+def prepare(motion: Motion, prior) -> Prepared:
+    """Check the skeleton against the prior, convert and encode."""
+    check_compatible(prior.spec, motion.skeleton)
+    model = to_model_motion(motion, prior.spec)
+    raw, start = encode(model, prior.spec)
+    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    pos = model.positions()
+    planted = np.percentile(pos[:, cidx, 1], 5.0, axis=0)
+    return Prepared(motion, model, raw, prior.normalizer.normalize(raw).float(), start, planted)
+
+
+@dataclass
+class TermSigmas:
+    """Sigmas of the standard terms, in user units."""
+
+    contact_speed: float = 0.1      # m/s of a planted foot
+    contact_height: float = 0.02    # m from the planted height
+    smoothness: float | None = None  # m/s^2 of joint acceleration; None: no smoothness term
+
+
+def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
+    """Contact (and optional smoothness) terms every task adds to its own."""
+    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    terms: list[Term] = [ContactTerm(cidx, prep.planted_height, sigmas.contact_speed, sigmas.contact_height)]
+    if sigmas.smoothness:
+        terms.append(SmoothnessTerm(sigmas.smoothness))
+    return terms
+
+
+@dataclass
+class TaskResult:
+    """An edited motion on the user's skeleton, with the solver's report and task metrics."""
+
+    motion: Motion
+    model_motion: Motion
+    solver: MAPResult | None
+    metrics: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+
+    def report(self) -> dict:
+        """JSON-ready: per-term values at start and end, metrics, timings, settings."""
+        r = {"metrics": self.metrics, "settings": self.settings,
+             "frames": self.motion.num_frames, "fps": self.motion.fps}
+        if self.solver is not None:
+            s = self.solver
+            r["solver"] = {"fun_start": s.fun_start, "fun": s.fun, "terms_start": s.terms_start, "terms": s.terms,
+                           "nit": s.nit, "nfev": s.nfev, "success": s.success, "message": s.message,
+                           "warnings": s.warnings, "timings": s.timings, "seam": s.seam,
+                           "windows": len(s.windows)}
+        return r
+
+
+def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,
+        noise_sigma: float | None = None) -> tuple[MAPResult, Motion]:
+    """Solve and decode to a model-skeleton Motion (continuing the input's root)."""
+    objective = MAPObjective(prior, prep.model.skeleton, terms, noise_sigma=noise_sigma)
+    result = solve(objective, Problem(x0, free, prep.start), options)
+    raw = prior.normalizer.denormalize(result.x.double())
+    # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
+    model = decode_motion(raw, prior.spec, prep.model.skeleton, prep.start, like=prep.original)
+    return result, model
+
+
+def back_to_file(model: Motion, prep: Prepared) -> Motion:
+    return to_file_motion(model, prep.original)
+
+
+def model_frames_in(ranges: list[tuple[int, int]], original_fps: float, model_fps: float, n_model: int) -> np.ndarray:
+    """Which prior-rate frames (n_model,) fall inside half-open ranges of original frames."""
+    t = np.arange(n_model) / model_fps * original_fps  # position in original frame units
+    inside = np.zeros(n_model, bool)
+    for a, b in ranges:
+        inside |= (t >= a - 1e-6) & (t <= b - 1 + 1e-6)
+    return inside
+
+
+def nearest_model_frame(frame: int, original_fps: float, model_fps: float) -> int:
+    return int(round(frame / original_fps * model_fps))
+
+
+def splice(synthesised: Motion, original: Motion, keep: np.ndarray) -> Motion:
+    """``synthesised`` (on the original's skeleton and rate) with the frames where ``keep``
+    is True taken exactly from ``original``."""
+    n = synthesised.num_frames
+    k = np.zeros(n, bool)
+    k[:min(n, len(keep))] = keep[:n]
+    rot = synthesised.rotations.copy()
+    root = synthesised.root.copy()
+    rot[k] = original.rotations[np.nonzero(k)[0]]
+    root[k] = original.root[np.nonzero(k)[0]]
+    tr = None
+    if synthesised.translations is not None:
+        tr = synthesised.translations.copy()
+        tr[k] = original.local_translations()[np.nonzero(k)[0]]
+    return synthesised.with_frames(rot, root, tr)

@@ -1,0 +1,132 @@
+"""Path following (Wang et al. 2019, section 5.2): continue a seed motion along a ground path."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from motionopt.metrics import foot_skating
+from motionopt.motion import Motion
+from motionopt.objective import PathTerm, nearest_on_polyline_sq
+from motionopt.solver import SolverOptions
+
+from .common import Prepared, TaskResult, TermSigmas, back_to_file, prepare, run, standard_terms
+
+
+def polyline_lengths(path: np.ndarray) -> np.ndarray:
+    """Cumulative arc length at each point of a polyline (N,)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+
+
+def point_at(path: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Points (K, 2) at arc lengths ``s`` (clipped to the path)."""
+    cum = polyline_lengths(path)
+    s = np.clip(s, 0.0, cum[-1])
+    return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=-1)
+
+
+def arc_length_of_nearest(path: np.ndarray, point: np.ndarray) -> float:
+    """Arc length along the path of the point nearest ``point`` (2,)."""
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    t = np.clip(((point - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    d = np.linalg.norm(a + t[:, None] * ab - point, axis=1)
+    i = int(np.argmin(d))
+    return float(polyline_lengths(path)[i] + t[i] * np.linalg.norm(ab[i]))
+
+
+@dataclass
+class PathFollow:
+    """Continue ``seed`` so that its root follows ``path`` (N, 2) of ground points (x, z)
+    in metres, in the seed file's world coordinates.
+
+    Timing: ``times`` (N,) seconds after the seed's end at each path point, or a constant
+    ``speed`` (m/s; default the seed's recent speed, at least 1 m/s). ``seconds`` of new
+    motion (default: until the path's end at that timing).
+    """
+
+    seed: Motion
+    path: np.ndarray
+    prior: object
+    times: np.ndarray | None = None
+    speed: float | None = None
+    seconds: float | None = None
+    sigma_path: float = 0.02
+    sigma_timing: float = 0.3
+    sigmas: TermSigmas = field(default_factory=TermSigmas)
+    options: SolverOptions = field(default_factory=SolverOptions)
+
+    def __post_init__(self) -> None:
+        self.path = np.asarray(self.path, dtype=np.float64)
+        if self.path.ndim != 2 or self.path.shape[1] != 2:
+            raise ValueError(f"the path must be a list of (x, z) points; got shape {self.path.shape}")
+        if len(self.path) < 2:
+            raise ValueError(f"the path needs at least 2 points, got {len(self.path)}")
+        if not np.isfinite(self.path).all():
+            raise ValueError("the path holds NaN or infinite coordinates")
+        if polyline_lengths(self.path)[-1] < 1e-6:
+            raise ValueError("the path has zero length: its points all coincide")
+        if self.times is not None:
+            self.times = np.asarray(self.times, dtype=np.float64)
+            if len(self.times) != len(self.path) or np.any(np.diff(self.times) <= 0):
+                raise ValueError("path times must be one per point and strictly increasing")
+        if self.speed is not None and not self.speed > 0:
+            raise ValueError(f"speed must be positive, got {self.speed}")
+        if self.seconds is not None and not self.seconds > 0:
+            raise ValueError(f"seconds must be positive, got {self.seconds}")
+
+    def targets(self, prep: Prepared, fps: float) -> tuple[np.ndarray, int, float]:
+        """Per new frame target points (K, 2), the number of new frames, and the speed used."""
+        end = prep.model.root[-1, [0, 2]]
+        if self.times is not None:
+            n_new = int(round((self.seconds or self.times[-1]) * fps))
+            t = np.arange(1, n_new + 1) / fps
+            cum = polyline_lengths(self.path)
+            s = np.interp(t, self.times, cum)
+            return point_at(self.path, s), n_new, float(cum[-1] / max(self.times[-1] - self.times[0], 1e-6))
+        speed = self.speed
+        if speed is None:
+            recent = prep.model.root[-int(fps):, [0, 2]]
+            seed_speed = np.linalg.norm(np.diff(recent, axis=0), axis=1).sum() / max(len(recent) - 1, 1) * fps
+            speed = max(float(seed_speed), 1.0)
+        s0 = arc_length_of_nearest(self.path, end)
+        remaining = polyline_lengths(self.path)[-1] - s0
+        seconds = self.seconds or max(remaining / speed, 1.0 / fps)
+        n_new = max(1, int(round(seconds * fps)))
+        s = s0 + speed * np.arange(1, n_new + 1) / fps
+        return point_at(self.path, s), n_new, speed
+
+    def solve(self) -> TaskResult:
+        prior = self.prior
+        prep = prepare(self.seed, prior)
+        fps = prior.spec.fps
+        tgt, n_new, speed = self.targets(prep, fps)
+        n_seed = len(prep.x)
+        n = n_seed + n_new
+        x0 = torch.full((n, prior.spec.dim), float("nan"))
+        x0[:n_seed] = prep.x
+        free = np.zeros(n, bool)
+        free[n_seed:] = True
+        full_targets = np.zeros((n, 2))
+        full_targets[n_seed:] = tgt
+        mask = free.copy()
+        terms = [PathTerm(self.path, self.sigma_path, mask=mask, name="path"),
+                 PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=mask, name="path_timing")]
+        terms += standard_terms(prep, prior, self.sigmas)
+        result, model = run(prior, prep, x0, free, terms, self.options)
+        motion = back_to_file(model, prep)
+        new = model.root[n_seed:, [0, 2]]
+        dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new), torch.from_numpy(self.path)).numpy())
+        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        metrics = {
+            "path_distance_cm_mean": float(dist.mean() * 100),
+            "path_distance_cm_max": float(dist.max() * 100),
+            "end_distance_to_path_end_m": float(np.linalg.norm(new[-1] - self.path[-1])),
+            "foot_skating_cm_per_s": float(foot_skating(torch.from_numpy(model.positions()[n_seed:]), fps, cidx) * 100),
+            "new_frames": n_new,
+            "speed_m_per_s": speed,
+            "frames_per_second": n_new / max(result.timings["total"], 1e-9),
+        }
+        return TaskResult(motion, model, result, metrics, {"sigma_path": self.sigma_path, "speed": speed,
+                                                           "new_seconds": n_new / fps})
