@@ -297,7 +297,7 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
         skeleton.scaled(scale),
         rotations,
         root * scale,
-        fps=float(fps) if fps else frame_rate(frame_time),
+        fps=float(fps) if fps is not None else frame_rate(frame_time),
         translations=translations * scale if has_positions else None,
         source_unit=unit,
         euler_hint=hint,

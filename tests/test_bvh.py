@@ -317,5 +317,7 @@ def test_frame_rate_override_and_header_rate(tmp_path):
     path = write(tmp_path, bvh_text(frame_values(), frame_time="0.0333333"))
     assert bvh.load(path).fps == 30.0  # exactly: resampling lands on whole frames
     assert bvh.load(path, fps=60.0).fps == 60.0
+    with pytest.raises(ValueError, match="frame rate must be positive"):
+        bvh.load(path, fps=0)
     out = bvh.save(bvh.load(path, fps=60.0), tmp_path / "out.bvh")
     assert "Frame Time: 0.0166667\n" in out.read_text()

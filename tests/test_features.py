@@ -1,6 +1,7 @@
 """The prior feature representation: exact decoding over whole clips, gradients, contact labels."""
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,7 +19,9 @@ BANDAI = DATA / "bandai-walk-normal-001.bvh"
 SHARED_CMU = Path(__file__).parent.parent.parent / "shared" / "data" / "cmu" / "martial" / "03.bvh"
 
 
+@functools.lru_cache(maxsize=None)
 def encoded(path: Path):
+    """The clip, its default spec, its model motion, features and decoding start (cached: read-only)."""
     motion = bvh.load(path)
     spec = default_spec(motion.skeleton)
     model = to_model_motion(motion, spec)
