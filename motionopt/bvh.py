@@ -2,7 +2,9 @@
 
 Supported: any rotation channel order per joint, 3- or 6-channel joints (position
 channels replace the rest offset), End Sites, tabs or spaces, Windows line endings,
-trailing blank lines. Lengths are converted to metres on load and back on save.
+trailing blank lines. Lengths are converted to metres on load and back on save; the
+Euler angles read are kept (``Motion.euler_hint``) so that a file written back has the
+same numbers, and rounded header frame times are read as the rate they stand for.
 """
 from __future__ import annotations
 
@@ -262,8 +264,9 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
 
     Args:
         unit: length unit of the file ('cm', 'm', 'mm', 'in'), or 'auto' to guess from
-            the skeleton's height.
-        fps: override the frame rate stated in the file (for files with a wrong header).
+            the skeleton's size (``guess_unit``).
+        fps: override the frame rate stated in the file (for files with a wrong header);
+            otherwise the header's, as ``frame_rate`` reads it.
     """
     skeleton, values, frame_time = read_channels(path)
     if unit == "auto":
@@ -291,8 +294,7 @@ def load(path: str | os.PathLike, unit: str = "auto", fps: float | None = None) 
     # one conversion per Euler order, not per joint: small torch calls are costly on a busy CPU
     for order, joints in by_order.items():
         rotations[:, joints] = R.euler_to_quat(torch.from_numpy(hint[:, joints]), order).numpy()
-    root = translations[:, 0].copy() if any(c in skeleton.channels[0] for c in _POSITION_CHANNELS) \
-        else np.broadcast_to(skeleton.offsets[0], (n_frames, 3)).copy()
+    root = translations[:, 0].copy()  # the root's OFFSET where it has no position channels
     return Motion(
         skeleton.scaled(scale),
         rotations,
