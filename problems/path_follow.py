@@ -1,7 +1,9 @@
 """Path following (Wang et al. 2019, section 5.2): continue a seed motion along a ground path."""
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -130,3 +132,44 @@ class PathFollow:
         }
         return TaskResult(motion, model, result, metrics, {"sigma_path": self.sigma_path, "speed": speed,
                                                            "new_seconds": n_new / fps})
+
+
+def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read PATH.csv: a header line naming the columns ``x`` and ``z`` (metres, world
+    ground plane) and optionally ``t`` (seconds after the seed's end), then one point per
+    line. Returns the points (N, 2) and the times (N,) or None. Errors name the line."""
+    path = Path(path)
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        rows = [(i, row) for i, row in enumerate(csv.reader(f), start=1) if any(c.strip() for c in row)]
+    if not rows:
+        raise ValueError(f"{path}: the file is empty; expected a header line 'x,z' and at least 2 points")
+    line, header = rows[0]
+    names = [c.strip().lower() for c in header]
+    unknown = [n for n in names if n not in ("x", "z", "t")]
+    if unknown or "x" not in names or "z" not in names or len(set(names)) != len(names):
+        raise ValueError(f"{path}:{line}: the header must name the columns x and z, and optionally t "
+                         f"(like 'x,z' or 't,x,z'); got {','.join(header)!r}")
+    values = np.zeros((len(rows) - 1, len(names)))
+    for k, (line, row) in enumerate(rows[1:]):
+        if len(row) != len(names):
+            raise ValueError(f"{path}:{line}: expected {len(names)} values ({','.join(names)}), got {len(row)}")
+        for c, text in enumerate(row):
+            try:
+                values[k, c] = float(text)
+            except ValueError:
+                raise ValueError(f"{path}:{line}: {names[c]} value {text.strip()!r} is not a number") from None
+            if not np.isfinite(values[k, c]):
+                raise ValueError(f"{path}:{line}: {names[c]} value {text.strip()!r} is not a finite number")
+    if len(values) < 2:
+        raise ValueError(f"{path}: the path needs at least 2 points, found {len(values)}")
+    points = values[:, [names.index("x"), names.index("z")]]
+    if "t" not in names:
+        return points, None
+    times = values[:, names.index("t")]
+    for k in range(len(times)):
+        line = rows[k + 1][0]
+        if times[k] < 0:
+            raise ValueError(f"{path}:{line}: t {times[k]:g} is negative; t counts seconds after the seed's end")
+        if k and times[k] <= times[k - 1]:
+            raise ValueError(f"{path}:{line}: t {times[k]:g} does not come after the previous point's {times[k - 1]:g}")
+    return points, times
