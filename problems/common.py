@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from motionopt.features import (RootStart, decode_motion, encode, estimate_ground, to_file_motion,
+from motionopt.features import (RootStart, contact_labels, decode_motion, encode, estimate_ground, to_file_motion,
                                 to_model_motion)
 from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
@@ -80,9 +80,11 @@ class TaskResult:
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,
-        noise_sigma: float | None = None) -> tuple[MAPResult, Motion]:
-    """Solve and decode to a model-skeleton Motion (continuing the input's root)."""
-    objective = MAPObjective(prior, prep.model.skeleton, terms, noise_sigma=noise_sigma)
+        noise_sigma: float | None = None, prior_min_log_std: float | None = -2.5) -> tuple[MAPResult, Motion]:
+    """Solve and decode to a model-skeleton Motion (continuing the input's root).
+    ``prior_min_log_std``: see ``MAPObjective`` (None: the prior as trained)."""
+    objective = MAPObjective(prior, prep.model.skeleton, terms, noise_sigma=noise_sigma,
+                             prior_min_log_std=prior_min_log_std)
     result = solve(objective, Problem(x0, free, prep.start), options)
     raw = prior.normalizer.denormalize(result.x.double())
     # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
@@ -122,3 +124,67 @@ def splice(synthesised: Motion, original: Motion, keep: np.ndarray) -> Motion:
         tr = synthesised.translations.copy()
         tr[k] = original.local_translations()[np.nonzero(k)[0]]
     return synthesised.with_frames(rot, root, tr)
+
+
+def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, channels: slice,
+                    temperature: float, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Roll out ``len(clamp_raw)`` frames after ``context (C, D)`` (normalised), with the
+    feature ``channels`` of every new frame set to ``clamp_raw (N, K)`` (unnormalised)
+    before it becomes history: the prior synthesises the rest of each frame knowing the
+    clamped channels of the frames before it (e.g. the pose for a given root path)."""
+    norm = prior.normalizer
+    mean, std = norm.mean[channels].float(), norm.std[channels].float()
+    clamp = (clamp_raw.float() - mean) / std
+    frames = context.float()
+    rf = prior.receptive_field
+    out = []
+    for t in range(len(clamp)):
+        nxt = prior.sample(frames[-rf:], 1, generator=generator, temperature=temperature)[0]
+        nxt[channels] = clamp[t]
+        out.append(nxt)
+        frames = torch.cat((frames[-rf + 1:], nxt[None]))
+    return torch.stack(out)
+
+
+def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:
+    """The prior's contact probability (T, C) for every frame of ``x (T, D)`` (frame 0
+    takes frame 1's, having no history)."""
+    with torch.no_grad():
+        _, probs = prior.nll_and_contacts(x[1:].float(), x[:1].float())
+    probs = probs.double().numpy()
+    return np.concatenate((probs[:1], probs)) if len(probs) else np.zeros((len(x), prior.spec.num_contacts))
+
+
+def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray,
+               frames: slice | np.ndarray) -> Motion:
+    """Foot-contact cleanup (``footik.clean_contacts``) on ``frames`` of a model motion,
+    with the contacts the prior predicts for features ``x`` and where a foot is already
+    nearly still on the ground; other frames (``frames``: a slice or a mask) stay as they are."""
+    from motionopt.footik import clean_contacts
+
+    contacts = contact_probabilities(prior, x)
+    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    contacts = np.maximum(contacts, contact_labels(model.positions(), cidx, model.fps, 0.0,
+                                                   prior.spec.contact_height, prior.spec.contact_speed))
+    keep = np.ones(model.num_frames, bool)
+    keep[frames] = False
+    contacts[keep] = 0.0
+    cleaned = clean_contacts(model, list(prior.spec.contact_joints), contacts, planted_height)
+    rot = np.where(keep[:, None, None], model.rotations, cleaned.rotations)
+    return model.with_frames(rot, model.root.copy(), model.translations)
+
+
+def root_features(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Unnormalised root displacement and yaw-change features (K, 3) of frames whose root
+    ground positions are ``points[1:]`` (x, z) and headings ``yaw[1:]`` (radians), after a
+    frame at ``points[0]`` facing ``yaw[0]`` (the inverse of ``features.decode``'s root)."""
+    d = np.diff(points, axis=0)
+    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+    local = np.stack((c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]), axis=-1)
+    return np.concatenate((local, np.diff(yaw)[:, None]), axis=-1)
+
+
+def end_yaw(prep: Prepared, upto: int | None = None) -> float:
+    """Heading (radians, unwrapped) of frame ``upto - 1`` (default the last) of the input."""
+    s = prep.raw[:upto, 2].double().sum() if upto is None or upto > 0 else 0.0
+    return float(prep.start.yaw + s)

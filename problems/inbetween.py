@@ -1,17 +1,20 @@
 """In-betweening and prefix completion: synthesise the frames outside kept ranges."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 
+from motionopt import rotations as R
+from motionopt.features import RootStart, decode_motion, encode
 from motionopt.motion import Motion
 from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import SolverOptions
 
-from .common import (TaskResult, TermSigmas, back_to_file, model_frames_in, prepare, run, splice,
-                     standard_terms)
+from .common import (TaskResult, TermSigmas, back_to_file, clamped_rollout, model_frames_in, plant_feet, prepare,
+                     root_features, run, splice, standard_terms)
 
 
 def parse_ranges(text: str) -> list[tuple[int, int]]:
@@ -63,6 +66,7 @@ class Inbetween:
     sigma_join_angle: float = 0.02
     sigmas: TermSigmas = field(default_factory=TermSigmas)
     options: SolverOptions = field(default_factory=SolverOptions)
+    refine: bool = False
 
     def __post_init__(self) -> None:
         self.keep = check_ranges(list(self.keep), self.motion.num_frames)
@@ -78,20 +82,27 @@ class Inbetween:
         n_in = min(len(prep.x), n)
         kept = model_frames_in(self.keep, fps_o, fps_m, n)
         kept[n_in:] = False
-        x0 = torch.full((n, prior.spec.dim), float("nan"))
-        x0[:n_in][kept[:n_in]] = prep.x[:n_in][kept[:n_in]]
-        free = ~kept
-        # kept frames right after a gap: their world root and pose must be met by the gap
+        t0 = time.perf_counter()
+        src = np.minimum(np.arange(n), n_in - 1)
+        rot, root = prep.model.rotations[src].copy(), prep.model.root[src].copy()
+        gen = torch.Generator().manual_seed(self.options.seed)
+        for a, b in _gaps(kept):
+            self._fill(prep, rot, root, a, b if b < n else None, n, gen)
+        model = prep.model.with_frames(rot, root, None) if n == n_in else Motion(
+            prep.model.skeleton, rot, root, fps_m, source_unit=prep.model.source_unit)
+        x = features_of(model, prior, prep.start.ground)
+        result = None
         join = np.zeros(n, bool)
         join[1:] = kept[1:] & ~kept[:-1]
-        root_t = np.zeros((n, 3))
-        rot_t = np.tile(np.array([1.0, 0, 0, 0]), (n, len(prior.spec.joints), 1))
-        root_t[:n_in], rot_t[:n_in] = prep.model.root[:n_in], prep.model.rotations[:n_in]
-        terms = standard_terms(prep, prior, self.sigmas)
-        if join.any():
-            terms.insert(0, PoseFidelityTerm(root_t, rot_t, self.sigma_join_root, self.sigma_join_angle,
-                                             mask=join, name="join"))
-        result, model = run(prior, prep, x0, free, terms, self.options)
+        if self.refine:
+            root_t, rot_t = prep.model.root[src], prep.model.rotations[src]
+            terms = [PoseFidelityTerm(root_t, rot_t, self.sigma_join_root, self.sigma_join_angle, mask=join,
+                                      name="join")] if join.any() else []
+            terms += standard_terms(prep, prior, self.sigmas)
+            result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None))
+            x = result.x
+        model = plant_feet(model, prior, x, prep.planted_height, ~kept)
+        seconds = time.perf_counter() - t0
         synth = back_to_file(model, prep)
         keep_o = np.zeros(synth.num_frames, bool)
         for a, b in self.keep:
@@ -99,9 +110,70 @@ class Inbetween:
         out = splice(synth[:total_o], self.motion, keep_o[:total_o])
         joins = np.nonzero(join)[0]
         metrics = {"synthesised_frames": int((~keep_o[:total_o]).sum()),
-                   "join_root_error_cm": [float(np.linalg.norm(model.root[j] - root_t[j]) * 100) for j in joins],
-                   "frames_per_second": int(free.sum()) / max(result.timings["total"], 1e-9)}
-        return TaskResult(out, model, result, metrics, {"keep": self.keep, "frames": total_o})
+                   "join_root_error_cm": [float(np.linalg.norm(model.root[j - 1] - prep.model.root[j]) * 100)
+                                          for j in joins],
+                   "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
+        return TaskResult(out, model, result, metrics, {"keep": self.keep, "frames": total_o,
+                                                        "temperature": self.options.temperature,
+                                                        "refine": self.refine})
+
+    def _fill(self, prep, rot: np.ndarray, root: np.ndarray, a: int, b: int | None, n: int,
+              gen: torch.Generator) -> None:
+        """Synthesise model frames [a, b) in place (b None: to the end ``n``).
+
+        Before a kept frame b, the root runs on a smooth curve from frame a - 1 (leaving
+        it at its velocity) to frame b, turning evenly to b's heading; the prior
+        synthesises the pose along it (``clamped_rollout``), and a correction that fades
+        in over the gap (slerp of each joint's rotation error at frame b, smoothstep
+        weights) makes the last synthesised frame lead into frame b without a jump. With
+        no frame after the gap the prior continues freely (prefix completion).
+        """
+        prior = self.prior
+        ground = prep.start.ground
+        ctx_motion = Motion(prep.model.skeleton, rot[:a], root[:a], prior.spec.fps)
+        ctx = features_of(ctx_motion, prior, ground)[-prior.receptive_field:]
+        upto = a if b is None else b + 1
+        yaws = np.unwrap(2 * np.arctan2(rot[:upto, 0, 2], rot[:upto, 0, 0]))
+        start = RootStart(float(yaws[a - 1]), float(root[a - 1, 0]), float(root[a - 1, 2]), ground)
+        if b is None:
+            new = prior.sample(ctx, n - a, generator=gen, temperature=self.options.temperature)
+        else:
+            k = b - a + 1
+            p0, p1 = root[a - 1, [0, 2]], prep.model.root[b, [0, 2]]
+            v0 = p0 - root[a - 2, [0, 2]] if a >= 2 else (p1 - p0) / k
+            s = np.arange(k + 1)[:, None] / k
+            pts = ((2 * s ** 3 - 3 * s ** 2 + 1) * p0 + (s ** 3 - 2 * s ** 2 + s) * v0 * k
+                   + (-2 * s ** 3 + 3 * s ** 2) * p1 + (s ** 3 - s ** 2) * (p1 - p0))
+            y1 = yaws[a - 1] + np.arctan2(np.sin(yaws[b] - yaws[a - 1]), np.cos(yaws[b] - yaws[a - 1]))
+            yaw = yaws[a - 1] + (y1 - yaws[a - 1]) * s[:, 0]
+            new = clamped_rollout(prior, ctx, torch.from_numpy(root_features(pts, yaw)), slice(0, 3),
+                                  self.options.temperature, gen)
+        raw = prior.normalizer.denormalize(new.double())
+        m = decode_motion(raw, prior.spec, prep.model.skeleton, start)
+        q, r = m.rotations, m.root
+        if b is not None:
+            w = np.arange(1, len(q) + 1) / len(q)
+            w = w * w * (3 - 2 * w)
+            fix = R.quat_multiply(torch.from_numpy(prep.model.rotations[b]), R.quat_conjugate(torch.from_numpy(q[-1])))
+            ident = R.quat_identity(fix.shape[:-1])
+            turn = R.quat_slerp(ident.expand(len(q), *fix.shape), fix.expand(len(q), *fix.shape),
+                                torch.from_numpy(np.broadcast_to(w[:, None], q.shape[:2]).copy()))
+            q = R.quat_multiply(turn, torch.from_numpy(q)).numpy()
+            r = r + w[:, None] * (prep.model.root[b] - r[-1])
+            q, r = q[:-1], r[:-1]
+        rot[a:a + len(q)], root[a:a + len(q)] = q, r
+
+
+def _gaps(kept: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of frames that are not kept."""
+    d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def features_of(motion: Motion, prior, ground: float) -> torch.Tensor:
+    """Normalised features (T, D) of a model motion, heights measured from ``ground``."""
+    raw, _ = encode(motion, prior.spec, ground=ground)
+    return prior.normalizer.normalize(raw).float()
 
 
 def complete(motion: Motion, prefix: int, n_frames: int, prior, **kwargs) -> Inbetween:

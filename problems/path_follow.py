@@ -2,18 +2,22 @@
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.ndimage import gaussian_filter1d
 
+from motionopt.features import decode_motion
 from motionopt.metrics import foot_skating
 from motionopt.motion import Motion
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.solver import SolverOptions
 
-from .common import Prepared, TaskResult, TermSigmas, back_to_file, prepare, run, standard_terms
+from .common import (Prepared, TaskResult, TermSigmas, back_to_file, clamped_rollout, plant_feet, prepare,
+                     root_features, run, standard_terms)
 
 
 def polyline_lengths(path: np.ndarray) -> np.ndarray:
@@ -58,6 +62,7 @@ class PathFollow:
     sigma_timing: float = 0.3
     sigmas: TermSigmas = field(default_factory=TermSigmas)
     options: SolverOptions = field(default_factory=SolverOptions)
+    refine: bool = False
 
     def __post_init__(self) -> None:
         self.path = np.asarray(self.path, dtype=np.float64)
@@ -99,39 +104,85 @@ class PathFollow:
         s = s0 + speed * np.arange(1, n_new + 1) / fps
         return point_at(self.path, s), n_new, speed
 
+    def root_channels(self, prep: Prepared, tgt: np.ndarray, fps: float) -> np.ndarray:
+        """Unnormalised root displacement and yaw-change features (K, 3) of the new frames
+        that put the root on ``tgt`` (K, 2), facing along the path as the seed faced its
+        direction of travel (forwards, sideways or backwards: the seed's last half second
+        says which)."""
+        spec = self.prior.spec
+        s = spec.slices()
+        raw = prep.raw.double().numpy()
+        yaw_end = prep.start.yaw + raw[:, s["yaw_delta"]].sum()
+        recent = raw[-max(int(fps / 2), 2):, s["root_delta"]].sum(axis=0)
+        travel = float(np.arctan2(recent[0], recent[1])) if np.linalg.norm(recent) * 2 > 0.3 else 0.0
+        pts = np.concatenate((prep.model.root[-1:, [0, 2]], tgt))
+        # heading from the path's direction over a short look-ahead, held where it is slow
+        k = max(int(fps / 10), 1)
+        ahead = pts[np.minimum(np.arange(len(pts)) + k, len(pts) - 1)] - pts[np.maximum(np.arange(len(pts)) - k, 0)]
+        fast = np.linalg.norm(ahead, axis=1) / (2 * k / fps) > 0.2
+        yaw = np.empty(len(pts))
+        prev = yaw_end
+        for i in range(len(pts)):
+            if fast[i]:
+                want = np.arctan2(ahead[i, 0], ahead[i, 1]) - travel
+                prev = prev + np.arctan2(np.sin(want - prev), np.cos(want - prev))
+            yaw[i] = prev
+        yaw = gaussian_filter1d(yaw, fps / 15, mode="nearest")
+        ramp = np.clip(np.arange(len(pts)) / max(fps / 3, 1), 0, 1)
+        ramp = ramp * ramp * (3 - 2 * ramp)
+        yaw = yaw_end + ramp * (yaw - yaw_end)
+        return root_features(pts, yaw)
+
     def solve(self) -> TaskResult:
         prior = self.prior
         prep = prepare(self.seed, prior)
         fps = prior.spec.fps
+        t0 = time.perf_counter()
         tgt, n_new, speed = self.targets(prep, fps)
+        # a seed that ends off the path joins it over the first half second
+        off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[0] - tgt[1] if n_new > 1 else 0)
+        fade = np.clip(1 - np.arange(1, n_new + 1) / max(fps / 2, 1), 0, 1)[:, None]
+        tgt = tgt + off * fade * fade * (3 - 2 * fade)
         n_seed = len(prep.x)
         n = n_seed + n_new
-        x0 = torch.full((n, prior.spec.dim), float("nan"))
-        x0[:n_seed] = prep.x
-        free = np.zeros(n, bool)
-        free[n_seed:] = True
-        full_targets = np.zeros((n, 2))
-        full_targets[n_seed:] = tgt
-        mask = free.copy()
-        terms = [PathTerm(self.path, self.sigma_path, mask=mask, name="path"),
-                 PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=mask, name="path_timing")]
-        terms += standard_terms(prep, prior, self.sigmas)
-        result, model = run(prior, prep, x0, free, terms, self.options)
+        gen = torch.Generator().manual_seed(self.options.seed)
+        new = clamped_rollout(prior, prep.x[-prior.receptive_field:], torch.from_numpy(self.root_channels(prep, tgt, fps)),
+                              slice(0, 3), self.options.temperature, gen)
+        x = torch.cat((prep.x, new))
+        result = None
+        if self.refine:
+            free = np.zeros(n, bool)
+            free[n_seed:] = True
+            full_targets = np.zeros((n, 2))
+            full_targets[n_seed:] = tgt
+            terms = [PathTerm(self.path, self.sigma_path, mask=free, name="path"),
+                     PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=free, name="path_timing")]
+            terms += standard_terms(prep, prior, self.sigmas)
+            result, model = run(prior, prep, x, free, terms, replace(self.options, pso=None))
+            x = result.x
+        raw = prior.normalizer.denormalize(x.double())
+        model = decode_motion(raw, prior.spec, prep.model.skeleton, prep.start, like=prep.original)
+        model = plant_feet(model, prior, x, prep.planted_height, slice(n_seed, n))
+        seconds = time.perf_counter() - t0
         motion = back_to_file(model, prep)
-        new = model.root[n_seed:, [0, 2]]
-        dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new), torch.from_numpy(self.path)).numpy())
+        new_root = model.root[n_seed:, [0, 2]]
+        dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new_root), torch.from_numpy(self.path)).numpy())
         cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        with torch.no_grad():
+            nll = prior.nll(x[n_seed:].float(), x[max(0, n_seed - prior.receptive_field):n_seed].float())
         metrics = {
             "path_distance_cm_mean": float(dist.mean() * 100),
             "path_distance_cm_max": float(dist.max() * 100),
-            "end_distance_to_path_end_m": float(np.linalg.norm(new[-1] - self.path[-1])),
+            "end_distance_to_path_end_m": float(np.linalg.norm(new_root[-1] - self.path[-1])),
             "foot_skating_cm_per_s": float(foot_skating(torch.from_numpy(model.positions()[n_seed:]), fps, cidx) * 100),
+            "prior_nll_per_frame": float(nll.mean()),
             "new_frames": n_new,
             "speed_m_per_s": speed,
-            "frames_per_second": n_new / max(result.timings["total"], 1e-9),
+            "frames_per_second": n_new / max(seconds, 1e-9),
         }
         return TaskResult(motion, model, result, metrics, {"sigma_path": self.sigma_path, "speed": speed,
-                                                           "new_seconds": n_new / fps})
+                                                           "new_seconds": n_new / fps, "refine": self.refine,
+                                                           "temperature": self.options.temperature})
 
 
 def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
