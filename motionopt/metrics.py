@@ -60,3 +60,33 @@ def foot_skating(positions: Tensor, fps: float, contact_idx: list[int], ground: 
     step = p[..., 1:, :, :] - p[..., :-1, :, :]
     speed = step[..., [0, 2]].norm(dim=-1) * fps
     return speed[mask].mean() if mask.any() else torch.tensor(float("nan"), dtype=positions.dtype)
+
+
+def l2p(pred: Tensor, target: Tensor) -> Tensor:
+    """Global position error of in-betweening (LAFAN1's L2P, here in metres, without its
+    normalisation by training statistics): per frame, the Euclidean norm of all joints'
+    position errors stacked, ``(..., T, J, 3)`` -> mean over frames ``(...)``."""
+    return (pred - target).flatten(-2).norm(dim=-1).mean(-1)
+
+
+def l2q(pred: Tensor, target: Tensor) -> Tensor:
+    """Global rotation error of in-betweening (LAFAN1's L2Q): per frame, the Euclidean
+    norm of all joints' world quaternion differences ``(..., T, J, 4)`` stacked, each
+    predicted quaternion taken in the target's hemisphere (q and -q are one rotation);
+    mean over frames ``(...)``."""
+    sign = torch.where((pred * target).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(pred)
+    return (pred * sign - target).flatten(-2).norm(dim=-1).mean(-1)
+
+
+def npss(pred: Tensor, target: Tensor) -> Tensor:
+    """Normalised power spectrum similarity (Gopalakrishnan et al. 2019), lower is better:
+    per feature, the earth mover's distance between the normalised power spectra over
+    time of prediction and target, averaged with the target's power as weights.
+    ``(B, T, F)`` sequences (e.g. world quaternions flattened) -> scalar."""
+    p_pred = torch.fft.rfft(pred, dim=-2).abs().pow(2)
+    p_true = torch.fft.rfft(target, dim=-2).abs().pow(2)
+    power = p_true.sum(-2)
+    n_pred = p_pred / p_pred.sum(-2, keepdim=True).clamp_min(1e-12)
+    n_true = p_true / power[..., None, :].clamp_min(1e-12)
+    emd = (n_pred.cumsum(-2) - n_true.cumsum(-2)).abs().sum(-2)
+    return (emd * power).sum() / power.sum().clamp_min(1e-12)
