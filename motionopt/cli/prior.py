@@ -120,7 +120,11 @@ def cmd_info(args: argparse.Namespace) -> int:
         "validation_clips": meta.get("validation_clips"),
         "epochs": meta.get("epochs_done"),
         "training_minutes": meta.get("training_minutes"),
-        "final_val_nll_per_frame": hist[-1].get("val_nll_per_frame") if hist else None,
+        "selected_epoch": meta.get("selected_epoch"),
+        "val_nll_per_frame": next((r.get("val_nll_per_frame") for r in hist
+                                   if r["epoch"] == meta.get("selected_epoch")), None),
+        "val_nll_median": next((r.get("val_nll_median") for r in hist
+                                if r["epoch"] == meta.get("selected_epoch")), None),
         "final_validation": {k: v for k, v in hist[-1].items() if k.startswith("val_")} if hist else None,
     }
     if args.json:
