@@ -12,7 +12,6 @@ from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
 from priors.score import score_motion
 
 from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,6 @@ from priors.protocol import MotionPrior
 from priors.score import features_of
 
 from priorkit import cmu_clips, features, fresh_prior, tiny_prior
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,6 @@ from priors.checkpoint import load_prior, read_checkpoint
 from priors.train import TrainConfig, log_path, state_path, train_prior, validation_nll
 
 from priorkit import TINY, fresh_prior, tiny_dataset
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 
 def config(**kw) -> TrainConfig:
@@ -33,8 +32,9 @@ def test_training_writes_checkpoint_state_and_log(trained):
     assert [r["epoch"] for r in records] == [1, 2, 3]
     assert all(math.isfinite(r["val_nll_per_frame"]) and math.isfinite(r["train_loss"]) for r in records)
     meta = load_prior(trained).metadata
-    assert meta["licence"] == "test licence" and meta["epochs_done"] == 3
-    assert meta["history"] == records
+    best = min(records, key=lambda r: r["val_nll_median"])["epoch"]
+    assert meta["selected_epoch"] == best and meta["history"] == records[:best]
+    assert meta["licence"] == "test licence"
     ds = tiny_dataset()
     assert meta["validation_clips"] == sorted(ds.val) and meta["train_clips"] == sorted(ds.train)
     assert not set(meta["validation_clips"]) & set(meta["train_clips"])
@@ -44,19 +44,24 @@ def test_training_writes_checkpoint_state_and_log(trained):
 def test_training_lowers_validation_nll(trained):
     c = config()
     val = tiny_dataset().windows("val", c.window, c.window // 2)
-    before = validation_nll(fresh_prior(), val)
-    after = read_checkpoint(trained)["metadata"]["history"][-1]["val_nll_per_frame"]
-    assert after < before - 30
-    assert after == pytest.approx(validation_nll(load_prior(trained), val), rel=1e-5)
+    before_mean, before_median = validation_nll(fresh_prior(), val)
+    meta = read_checkpoint(trained)["metadata"]
+    selected = meta["history"][meta["selected_epoch"] - 1]
+    assert selected["val_nll_median"] < before_median - 30 and selected["val_nll_per_frame"] < before_mean - 30
+    # the shipped weights are those of the selected epoch
+    mean, median = validation_nll(load_prior(trained), val)
+    assert (mean, median) == (pytest.approx(selected["val_nll_per_frame"], rel=1e-5),
+                              pytest.approx(selected["val_nll_median"], rel=1e-5))
 
 
 def test_interrupted_training_resumes_to_the_same_weights(trained, tmp_path):
     out = tmp_path / "resumed.pt"
     first = train_prior(tiny_dataset(), out, config(max_minutes=1e-9), progress=False)
-    assert read_checkpoint(out)["metadata"]["epochs_done"] == 1 and first is not None
+    assert torch.load(state_path(out), weights_only=False)["epoch"] == 1 and first is not None
     train_prior(tiny_dataset(), out, config(), progress=False)
-    a, b = read_checkpoint(trained)["state_dict"], read_checkpoint(out)["state_dict"]
-    assert all(torch.equal(a[k], b[k]) for k in a)
+    for a, b in ((read_checkpoint(trained)["state_dict"], read_checkpoint(out)["state_dict"]),
+                 (torch.load(state_path(trained))["model"], torch.load(state_path(out))["model"])):
+        assert all(torch.equal(a[k], b[k]) for k in a)
     assert [json.loads(line)["epoch"] for line in log_path(out).read_text().splitlines()] == [1, 2, 3]
 
 
