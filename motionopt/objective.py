@@ -62,18 +62,36 @@ class Term:
         """Whether the term has anything to say about these frames (skip it otherwise)."""
         return True
 
+    def window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        """The term's targets and masks for ``frames`` as tensors, built by ``_window_tensors``
+        once per window and dtype: a local solve evaluates the same window many times."""
+        key = (frames.tobytes(), dtype)
+        cached = self.__dict__.get("_window_cache")
+        if cached is None or cached[0] != key:
+            cached = (key, self._window_tensors(frames, dtype))
+            self.__dict__["_window_cache"] = cached
+        return cached[1]
+
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        return {}
+
 
 def _gaussian(residual_sq: Tensor, sigma: float) -> Tensor:
     return residual_sq / (2.0 * sigma * sigma)
 
 
-def _frame_mask(frames: np.ndarray, mask: np.ndarray | None, device=None) -> Tensor | None:
+def _frame_mask(frames: np.ndarray, mask: np.ndarray | None) -> np.ndarray | None:
+    """``mask`` (N,) at global ``frames``; frames past its end are off."""
     if mask is None:
         return None
     inside = frames < len(mask)
     m = np.zeros(len(frames), bool)
     m[inside] = mask[frames[inside]]
-    return torch.from_numpy(m)
+    return m
+
+
+def _masked(e: Tensor, mask: Tensor | None) -> Tensor:
+    return e if mask is None else e * mask
 
 
 def matrix_angle_sq(a: Tensor, b: Tensor) -> Tensor:
@@ -130,38 +148,50 @@ class PathTerm(Term):
     def active(self, frames: np.ndarray) -> bool:
         return self.mask is None or bool(_frame_mask(frames, self.mask).any())
 
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        m = _frame_mask(frames, self.mask)
+        out = {"path": torch.as_tensor(self.path, dtype=dtype),
+               "mask": None if m is None else torch.as_tensor(m, dtype=dtype)}
+        if self.targets is not None:
+            out["target"] = torch.as_tensor(self.targets[np.minimum(frames, len(self.targets) - 1)], dtype=dtype)
+        return out
+
     def energy(self, state: WindowState) -> Tensor:
         xz = state.root[..., state.lead:, [0, 2]]
+        w = self.window_tensors(state.frames, xz.dtype)
         if self.targets is not None:
-            idx = np.minimum(state.frames, len(self.targets) - 1)
-            target = torch.as_tensor(self.targets[idx], dtype=xz.dtype)
-            d2 = (xz - target).pow(2).sum(-1)
+            d2 = (xz - w["target"]).pow(2).sum(-1)
         else:
-            d2 = nearest_on_polyline_sq(xz, torch.as_tensor(self.path, dtype=xz.dtype))
-        m = _frame_mask(state.frames, self.mask)
-        if m is not None:
-            d2 = d2 * m.to(d2)
-        return _gaussian(d2, self.sigma).sum(-1)
+            d2 = nearest_on_polyline_sq(xz, w["path"])
+        return _gaussian(_masked(d2, w["mask"]), self.sigma).sum(-1)
 
 
 def nearest_on_polyline_sq(points: Tensor, path: Tensor) -> Tensor:
-    """Squared distance (...,) from points (..., 2) to the nearest point of a polyline (N, 2)."""
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    ap = points[..., None, :] - a
-    t = ((ap * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)
-    closest = a + t[..., None] * ab
-    return (points[..., None, :] - closest).pow(2).sum(-1).min(-1).values
+    """Squared distance (...,) from points (..., 2) to the nearest point of a polyline (N, 2).
+
+    The nearest segment is chosen without gradient and the distance to it recomputed
+    differentiably: the same value and gradient as a minimum over all segments, with a
+    backward pass over one segment per point instead of all of them."""
+    a, ab = path[:-1], path[1:] - path[:-1]
+    inv_len_sq = 1.0 / (ab * ab).sum(-1).clamp_min(1e-12)
+
+    def dist_sq(p: Tensor, a: Tensor, ab: Tensor, inv: Tensor) -> Tensor:
+        t = (((p - a) * ab).sum(-1) * inv).clamp(0.0, 1.0)
+        return (p - a - t[..., None] * ab).pow(2).sum(-1)
+
+    with torch.no_grad():
+        seg = dist_sq(points.detach()[..., None, :], a, ab, inv_len_sq).argmin(-1)
+    return dist_sq(points, a[seg], ab[seg], inv_len_sq[seg])
 
 
 @dataclass
 class PoseFidelityTerm(Term):
     """Root position and local joint rotations close to a target motion.
 
-    ``root`` (N, 3) and ``rotations`` (N, J, 4) quaternions are targets per global frame; ``mask``
-    (N,) selects frames (e.g. only the noisy input's frames, or keyframes); ``joints``
-    selects which joints' rotations count (default all but the root, whose rotation
-    counts as well unless ``root_rotation`` is False).
+    ``root`` (N, 3) and ``rotations`` (N, J, 4) quaternions are targets per global frame
+    (either may be None); ``mask`` (N,) selects frames (e.g. only the noisy input's
+    frames, or keyframes); ``joints`` selects which joints' rotations count (default all,
+    the root's world rotation included).
     """
 
     root: np.ndarray | None
@@ -173,29 +203,37 @@ class PoseFidelityTerm(Term):
     name: str = "fidelity"
 
     def __post_init__(self) -> None:
-        self._mats = None if self.rotations is None else quat_to_matrix(
-            torch.as_tensor(np.asarray(self.rotations), dtype=torch.float64)).float()
+        if self.root is None and self.rotations is None:
+            raise ValueError("a fidelity term needs root or rotation targets (or both)")
 
     def active(self, frames: np.ndarray) -> bool:
         return self.mask is None or bool(_frame_mask(frames, self.mask).any())
 
-    def energy(self, state: WindowState) -> Tensor:
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
         n = len(self.root) if self.root is not None else len(self.rotations)
-        idx = np.minimum(state.frames, n - 1)
-        e = state.x.new_zeros(state.x.shape[:-1])
+        idx = np.minimum(frames, n - 1)
+        m = _frame_mask(frames, self.mask)
+        out = {"mask": None if m is None else torch.as_tensor(m, dtype=dtype), "root": None, "rot": None}
         if self.root is not None:
-            target = torch.as_tensor(self.root[idx], dtype=e.dtype)
-            e = e + _gaussian((state.root[..., state.lead:, :] - target).pow(2).sum(-1), self.sigma_root)
-        if self._mats is not None:
-            rot = state.rotations[..., state.lead:, :, :, :]
-            target = self._mats[idx].to(e.dtype)
+            out["root"] = torch.as_tensor(np.asarray(self.root)[idx], dtype=dtype)
+        if self.rotations is not None:
+            q = np.asarray(self.rotations)[idx]
             if self.joints is not None:
-                rot, target = rot[..., self.joints, :, :], target[..., self.joints, :, :]
-            e = e + _gaussian(matrix_angle_sq(rot, target), self.sigma_angle).sum(-1)
-        m = _frame_mask(state.frames, self.mask)
-        if m is not None:
-            e = e * m.to(e)
-        return e.sum(-1)
+                q = q[:, self.joints]
+            out["rot"] = quat_to_matrix(torch.as_tensor(q, dtype=torch.float64)).to(dtype)
+        return out
+
+    def energy(self, state: WindowState) -> Tensor:
+        w = self.window_tensors(state.frames, state.root.dtype)
+        e = state.x.new_zeros(state.x.shape[:-1])
+        if w["root"] is not None:
+            e = e + _gaussian((state.root[..., state.lead:, :] - w["root"]).pow(2).sum(-1), self.sigma_root)
+        if w["rot"] is not None:
+            rot = state.rotations[..., state.lead:, :, :, :]
+            if self.joints is not None:
+                rot = rot[..., self.joints, :, :]
+            e = e + _gaussian(matrix_angle_sq(rot, w["rot"]), self.sigma_angle).sum(-1)
+        return _masked(e, w["mask"]).sum(-1)
 
 
 @dataclass
@@ -215,14 +253,16 @@ class JointPositionTerm(Term):
     def active(self, frames: np.ndarray) -> bool:
         return any(int(f) in self.targets for f in frames)
 
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        local = [i for i, f in enumerate(frames) if int(f) in self.targets]
+        tgt = np.stack([np.asarray(self.targets[int(frames[i])], float) for i in local]) if local else np.zeros((0, 3))
+        return {"local": torch.as_tensor(local, dtype=torch.long), "target": torch.as_tensor(tgt, dtype=dtype)}
+
     def residuals(self, state: WindowState) -> Tensor:
         """(..., K, 3) position errors at the target frames inside the window."""
-        local = [i for i, f in enumerate(state.frames) if int(f) in self.targets]
-        if not local:
-            return state.positions.new_zeros(*state.positions.shape[:-3], 0, 3)
-        p = state.positions[..., [state.lead + i for i in local], self.joint, :]
-        tgt = torch.as_tensor(np.stack([self.targets[int(state.frames[i])] for i in local]), dtype=p.dtype)
-        return p - tgt
+        w = self.window_tensors(state.frames, state.positions.dtype)
+        p = state.positions[..., state.lead:, self.joint, :].index_select(-2, w["local"])
+        return p - w["target"]
 
     def energy(self, state: WindowState) -> Tensor:
         return _gaussian(self.residuals(state).pow(2).sum(-1), self.sigma).sum(-1)
@@ -249,13 +289,16 @@ class ContactTerm(Term):
     threshold: float = 0.5
     name: str = "contact"
 
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
+
     def energy(self, state: WindowState) -> Tensor:
         p = state.positions[..., self.joints, :]
         step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
         if state.lead == 0:  # the very first frame has no velocity
             step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
         speed_sq = step[..., -state.frames.shape[0]:, :, :].pow(2).sum(-1)
-        height = p[..., state.lead:, :, 1] - torch.as_tensor(self.planted_height, dtype=p.dtype)
+        height = p[..., state.lead:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
         w = (state.contacts > self.threshold).to(p)
         e = w * (_gaussian(speed_sq, self.sigma_speed) + _gaussian(height.pow(2), self.sigma_height))
         return e.sum((-1, -2))
@@ -301,14 +344,16 @@ class MAPObjective:
         return [self.prior_term] + ([self.noise_term] if self.noise_term else []) + list(self.terms)
 
     def window_state(self, x: Tensor, frames: np.ndarray, context: Tensor, lead_raw: Tensor,
-                     start: RootStart, noise: Tensor | None = None) -> WindowState:
+                     start: RootStart, noise: Tensor | None = None, contacts: Tensor | None = None) -> WindowState:
         """Decode a (batch of) window(s) ``x (..., T, D)`` after ``context (C, D)``.
 
         ``lead_raw`` holds the last solved frames (unnormalised, (L, D)) before the
         window, decoded together with it from ``start`` (the state before them).
+        ``contacts (T, C)``, when given, replaces the prior's contact prediction: a local
+        solver fixes them so that the contact term does not jump between iterates.
         """
         norm = self.prior.normalizer
-        nll, contacts = self.prior.nll_and_contacts(x, context, noise, self.prior_min_log_std)
+        nll, predicted = self.prior.nll_and_contacts(x, context, noise, self.prior_min_log_std)
         if context.shape[-2] == 0:
             # the sequence's first frame has no history: the prior has nothing to say about it
             nll = torch.cat((torch.zeros_like(nll[..., :1]), nll[..., 1:]), dim=-1)
@@ -316,8 +361,9 @@ class MAPObjective:
         lead = lead_raw.to(raw).expand(*raw.shape[:-2], *lead_raw.shape)
         rot, root = decode_matrices(torch.cat((lead, raw), dim=-2), self.spec, start)
         pos = fk_matrices(self.skeleton.parents, rot, root, self._offsets.to(x.dtype))
-        return WindowState(frames, lead_raw.shape[0], x, noise, rot, root, pos, contacts.detach(), nll,
-                           self.spec.fps)
+        if contacts is None:
+            contacts = predicted.detach()
+        return WindowState(frames, lead_raw.shape[0], x, noise, rot, root, pos, contacts, nll, self.spec.fps)
 
     def energies(self, state: WindowState) -> dict[str, Tensor]:
         """Every active term's energy (...,) for the window."""

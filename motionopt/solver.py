@@ -1,7 +1,7 @@
 """MAP solver: particle swarm initialisation, then L-BFGS over sliding windows.
 
-``solve(objective, problem_frames, options)`` optimises the normalised features of the
-free frames of a sequence, window by window (B frames, overlap b). Each window is
+``solve(objective, problem, options)`` optimises the normalised features of the free
+frames of a sequence, window by window (B frames, overlap b). Each window is
 conditioned on the solved frames before it; its overlap starts from the previous
 window's solution and its new frames from a rollout of the prior. The call and the
 result are shaped like ``scipy.optimize.minimize``.
@@ -11,23 +11,25 @@ from __future__ import annotations
 import logging
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 from torch import Tensor
 
 from . import rotations as R
-from .features import RootStart, advance
-from .objective import JointPositionTerm, MAPObjective, NonFiniteTermError, WindowState
+from .features import RootStart, advance, decode_positions
+from .objective import JointPositionTerm, MAPObjective, NonFiniteTermError
 
 log = logging.getLogger(__name__)
 
 METHODS = ("scipy", "nlopt", "torch", "adam")
 #: Cosine components over a window added to the per-frame variables (see ``_Window``).
 BASIS_SIZE = 8
+#: Frames decoded at a time by ``seam_report`` (bounds its memory on long sequences).
+SEAM_CHUNK = 1024
 
 
 class StopSolve(Exception):
@@ -37,8 +39,9 @@ class StopSolve(Exception):
 @dataclass
 class PSOOptions:
     """Particle swarm on a low-dimensional parametrisation: ``n_coeffs`` DCT coefficients
-    (over the window's new frames) of offsets to the root displacement and yaw-change
-    features, i.e. ``3 * n_coeffs`` dimensions, never the full pose of every frame."""
+    (over the window's new frames) of offsets to the prior's sampling noise of the root
+    displacement and yaw-change features, i.e. ``3 * n_coeffs`` dimensions, never the
+    full pose of every frame. A particle is a whole rollout of the prior."""
 
     particles: int = 12
     iterations: int = 4
@@ -53,7 +56,8 @@ class PSOOptions:
 class SolverOptions:
     """How to solve. ``method`` is the local optimiser: 'scipy' (L-BFGS-B), 'nlopt'
     (LD_LBFGS; with hard constraints, AUGLAG_EQ around it), 'torch' (torch.optim.LBFGS)
-    or 'adam' (plain first-order baseline)."""
+    or 'adam' (plain first-order baseline). ``time_budget`` (seconds per window) stops
+    any of them when spent (for comparisons at equal time)."""
 
     window: int = 34
     overlap: int = 17
@@ -66,7 +70,7 @@ class SolverOptions:
     temperature: float = 0.3
     seed: int = 0
     adam_lr: float = 0.02
-    time_budget: float | None = None  # seconds per window for 'adam'
+    time_budget: float | None = None
     callback: Callable[[dict], bool | None] | None = None
     progress: bool = False
 
@@ -116,16 +120,48 @@ def _dct_basis(n: int, k: int) -> Tensor:
     return torch.stack(rows)  # (k, n)
 
 
+def _coarse_basis(n: int, k: int) -> Tensor:
+    """(n, k) orthonormal cosine columns, column j scaled by n / (pi (j + 1/2)).
+
+    The prior scores each frame against the one before it, so its curvature along the
+    j-th cosine over n frames is about (pi j / n)^2 times that of a single frame: a step
+    on a column scaled by the inverse square root moves the slow directions as far as
+    the per-frame variables move the fast ones (a diagonal preconditioner in the
+    cosine basis)."""
+    b = _dct_basis(n, k).T
+    b = b / b.norm(dim=0, keepdim=True)
+    return b * (n / (math.pi * (torch.arange(k, dtype=torch.float32) + 0.5)))
+
+
+_HAT = torch.tensor([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                     [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                     [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=torch.float64)
+
+
+def _tangent_whitening(base: Tensor, std6: Tensor) -> Tensor:
+    """(..., R, 3, 3) matrices P such that a rotation vector ``P z`` applied on the right of
+    ``base (..., R, 3, 3)`` changes the normalised 6D features (std ``std6 (R, 6)``) by
+    about |z|: the prior's curvature is then alike in every direction of every joint
+    (a hinge-like joint's 6D entries vary 100 times less than a shoulder's)."""
+    g = base[..., None, :, :] @ _HAT.to(base)                                # (..., R, 3, 3, 3)
+    jac = torch.cat((g[..., :, 0], g[..., :, 1]), dim=-1) / std6[:, None, :]  # (..., R, 3, 6)
+    evals, evecs = torch.linalg.eigh(jac @ jac.transpose(-1, -2))
+    return evecs @ torch.diag_embed(evals.clamp_min(1e-12).rsqrt()) @ evecs.transpose(-1, -2)
+
+
 class _Window:
     """One window's optimisation.
 
     Variables per free frame: offsets to the four root features (normalised units) and a
-    rotation vector (radians) per joint applied to the frame's starting rotation, so
+    rotation vector per joint applied on the right of the frame's starting rotation, so
     every iterate holds valid rotations (never a 6D vector off the rotation manifold the
     prior was trained on); plus the prior's input noise when the objective has one.
-    The offsets are the sum of a per-frame part and a few cosine (DCT) components over
-    the window: a gradient step on those moves many frames together, which the prior's
-    stiff coupling between neighbouring frames otherwise makes L-BFGS do very slowly.
+    Rotation vectors are whitened (see ``_tangent_whitening``) so that all variables share
+    the normalised units the prior scores. The offsets are the sum of a per-frame part
+    and a few scaled cosine components over the window (see ``_coarse_basis``): a step on
+    those moves many frames together, which the prior's stiff coupling between
+    neighbouring frames otherwise makes L-BFGS do very slowly. Contact weights are fixed
+    at the start (``rebase``), so the objective is smooth during a local solve.
     """
 
     def __init__(self, objective: MAPObjective, x: Tensor, frames: np.ndarray, free_local: np.ndarray,
@@ -133,7 +169,9 @@ class _Window:
         self.obj = objective
         self.x = x.clone()
         self.frames = frames
+        self.free_np = free_local
         self.free = torch.from_numpy(free_local)
+        self.all_free = bool(free_local.all())
         self.context = context
         self.lead_raw = lead_raw
         self.start = start
@@ -143,21 +181,33 @@ class _Window:
         self.with_noise = with_noise
         self.n_free = int(free_local.sum())
         self.n_basis = min(BASIS_SIZE, self.n_free)
-        self.basis = _dct_basis(self.n_free, self.n_basis).T if self.n_free else torch.zeros(0, 0)  # (n_free, K)
+        self.basis = _coarse_basis(self.n_free, self.n_basis) if self.n_free else torch.zeros(0, 0)
         self.n_vars = (self.n_basis + self.n_free) * self.k
         self.size = self.n_vars + (self.n_free * self.p if with_noise else 0)
+        norm = objective.prior.normalizer
+        self._mean6 = norm.mean[4:self.p].float()
+        self._std6 = norm.std[4:self.p].float()
         self.nfev = 0
         self.prior_seconds = 0.0
         self.best = (math.inf, None)
         self.hard = [t for t in objective.terms if isinstance(t, JointPositionTerm) and t.hard and t.active(frames)]
         self._base_rot: Tensor | None = None
+        self._whiten: Tensor | None = None
+        self.contacts: Tensor | None = None
 
     # --- variables <-> window tensors -------------------------------------------------
     def rebase(self) -> None:
-        """Take the current window frames as the point that zero variables stand for."""
+        """Take the current window frames as the point that zero variables stand for, and
+        fix the contact weights to the prior's prediction there."""
         norm = self.obj.prior.normalizer
         raw = norm.denormalize(self.x[self.free].double())
-        self._base_rot = R.sixd_to_matrix(raw[:, 4:self.p].reshape(self.n_free, self.n_rot, 6)).float()
+        base = R.sixd_to_matrix(raw[:, 4:self.p].reshape(self.n_free, self.n_rot, 6))
+        self._base_rot = base.float()
+        self._whiten = _tangent_whitening(base, norm.std[4:self.p].double().reshape(self.n_rot, 6)).float()
+        self._root0 = self.x[self.free, :4]
+        self._tail = self.x[self.free, self.p:]
+        with torch.no_grad():
+            _, self.contacts = self.obj.prior.nll_and_contacts(self.x, self.context)
         self.best = (math.inf, None)
 
     def pack(self) -> np.ndarray:
@@ -171,46 +221,49 @@ class _Window:
         nk = self.n_vars
         coarse = v[..., :self.n_basis * self.k].reshape(*lead, self.n_basis, self.k)
         u = v[..., self.n_basis * self.k:nk].reshape(*lead, self.n_free, self.k) + self.basis @ coarse
-        x = self.x.expand(*lead, *self.x.shape).clone()
-        omega = u[..., 4:].reshape(*lead, self.n_free, self.n_rot, 3)
-        mats = self._base_rot @ R.axis_angle_to_matrix(omega)
-        norm = self.obj.prior.normalizer
-        six = R.matrix_to_6d(mats).reshape(*lead, self.n_free, 6 * self.n_rot)
-        mean, std = norm.mean[4:self.p].to(v), norm.std[4:self.p].to(v)
-        x[..., self.free, 4:self.p] = (six - mean) / std
-        x[..., self.free, :4] = self.x[self.free, :4] + u[..., :4]
+        z = u[..., 4:].reshape(*lead, self.n_free, self.n_rot, 3, 1)
+        mats = self._base_rot @ R.axis_angle_to_matrix((self._whiten @ z)[..., 0])
+        six = (R.matrix_to_6d(mats).reshape(*lead, self.n_free, 6 * self.n_rot) - self._mean6) / self._std6
+        rows = torch.cat((self._root0 + u[..., :4], six, self._tail.expand(*lead, *self._tail.shape)), dim=-1)
+        if self.all_free:
+            x = rows
+        else:
+            x = self.x.expand(*lead, *self.x.shape).clone()
+            x[..., self.free, :] = rows
         noise = None
         if self.with_noise:
             noise = torch.zeros_like(x)
             noise[..., self.free, :self.p] = v[..., nk:].reshape(*lead, self.n_free, self.p)
         return x, noise
 
-    def state(self, v: Tensor) -> WindowState:
+    def state(self, v: Tensor):
         x, noise = self.unpack(v)
         t0 = time.perf_counter()
-        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, noise)
+        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, noise, self.contacts)
         self.prior_seconds += time.perf_counter() - t0
         return st
 
     def energies(self, v: Tensor) -> dict[str, Tensor]:
-        st = self.state(v)
-        e = self.obj.energies(st)
+        e = self.obj.energies(self.state(v))
         for term in self.hard:
             e.pop(term.name, None)
         return e
+
+    def _check(self, e: dict[str, Tensor]) -> None:
+        for name, val in e.items():
+            if not bool(torch.isfinite(val).all()):
+                raise NonFiniteTermError(name, f"in frames {self.frames[0]}-{self.frames[-1]}")
 
     # --- scalar objective with gradient -----------------------------------------------
     def fun(self, v_np: np.ndarray) -> tuple[float, np.ndarray]:
         v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
         e = self.energies(v)
-        for name, val in e.items():
-            if not torch.isfinite(val).all():
-                raise NonFiniteTermError(name, f"in frames {self.frames[0]}-{self.frames[-1]}")
+        self._check(e)
         total = sum(e.values())
-        total.backward()
+        (g,) = torch.autograd.grad(total, v)
         self.nfev += 1
         f = float(total.detach())
-        g = v.grad.double().numpy()
+        g = g.numpy().astype(np.float64)
         if not np.isfinite(g).all():
             raise NonFiniteTermError("gradient", f"in frames {self.frames[0]}-{self.frames[-1]}")
         if f < self.best[0]:
@@ -230,32 +283,28 @@ class _Window:
         return r.detach().double().numpy(), jac.double().numpy()
 
 
-def _pso_rollout(win: "_Window", prior, context: Tensor, first: int, unknown: Tensor, base_noise: Tensor,
+def _pso_rollout(win: _Window, prior, context: Tensor, first: int, unknown: Tensor, base_noise: Tensor,
                  opts: PSOOptions, temperature: float, seed: int) -> tuple[Tensor, float, int]:
     """Particle swarm over the prior's sampling noise of the window's new frames.
 
     A particle is ``3 * n_coeffs`` DCT coefficients added to the standard normal draws of
     the root displacement and yaw-change features (``base_noise`` elsewhere), so each
     particle is a whole coherent rollout from window frame ``first``, used where
-    ``unknown``; its cost is the window objective. Returns the
-    best rollout (n_new, D), its cost and the number of evaluations.
+    ``unknown``; its cost is the window objective. Returns the best rollout (n_new, D),
+    its cost and the number of evaluations.
     """
     import pyswarms as ps
 
     n_new = base_noise.shape[0]
     basis = _dct_basis(n_new, opts.n_coeffs)
     dims = 3 * opts.n_coeffs
-    cache: dict[bytes, tuple[Tensor, float]] = {}
-
-    def rollouts(c: Tensor) -> Tensor:
-        coef = c.reshape(len(c), 3, opts.n_coeffs)
-        eps = base_noise.expand(len(c), -1, -1).clone()
-        eps[..., :3] = eps[..., :3] + torch.einsum("pck,kn->pnc", coef, basis)
-        ctx = context.expand(len(c), *context.shape)
-        return prior.sample(ctx, n_new, temperature=temperature, noise=eps)
+    best: list = [None, math.inf]
 
     def cost(c: np.ndarray) -> np.ndarray:
-        roll = rollouts(torch.from_numpy(c).float())
+        coef = torch.from_numpy(c).float().reshape(len(c), 3, opts.n_coeffs)
+        eps = base_noise.expand(len(c), -1, -1).clone()
+        eps[..., :3] += torch.einsum("pck,kn->pnc", coef, basis)
+        roll = prior.sample(context.expand(len(c), *context.shape), n_new, temperature=temperature, noise=eps)
         xw = win.x.expand(len(c), *win.x.shape).clone()
         xw[:, first:] = torch.where(unknown[:, None], roll, xw[:, first:])
         with torch.no_grad():
@@ -263,9 +312,8 @@ def _pso_rollout(win: "_Window", prior, context: Tensor, first: int, unknown: Te
             total = sum(win.obj.energies(st).values())
         total = torch.nan_to_num(total, nan=1e30, posinf=1e30)
         i = int(total.argmin())
-        best = cache.get("best")
-        if best is None or float(total[i]) < best[1]:
-            cache["best"] = (roll[i], float(total[i]))
+        if float(total[i]) < best[1]:
+            best[:] = [roll[i], float(total[i])]
         return total.double().numpy()
 
     rng = np.random.default_rng(seed)
@@ -277,23 +325,45 @@ def _pso_rollout(win: "_Window", prior, context: Tensor, first: int, unknown: Te
                                         bounds=(np.full(dims, -opts.bound), np.full(dims, opts.bound)),
                                         init_pos=init)
     optimizer.optimize(cost, iters=opts.iterations, verbose=False)
-    roll, f = cache["best"]
-    return roll, f, opts.particles * opts.iterations
+    return best[0], best[1], opts.particles * opts.iterations
 
 
-def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callable[[np.ndarray], bool]) -> tuple[np.ndarray, int, bool, str]:
-    """Run the chosen local optimiser from v0; returns (v, iterations, success, message)."""
+class _Stopped(Exception):
+    """Internal: the callback or the time budget ended a local solve."""
+
+
+def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions,
+                 stop: Callable[[np.ndarray], str | None]) -> tuple[np.ndarray, int, bool, str]:
+    """Run the chosen local optimiser from v0; returns (v, iterations, success, message).
+
+    ``stop(v)`` is asked after every iteration; a reason it returns ends the run at the
+    best iterate so far."""
+    reason: list[str] = []
+
+    def check(v: np.ndarray) -> None:
+        why = stop(v)
+        if why:
+            reason.append(why)
+            raise _Stopped
+
+    def best_or(v: np.ndarray) -> np.ndarray:
+        return win.best[1] if win.best[1] is not None else v
+
     if opts.method == "scipy":
         from scipy.optimize import minimize
 
-        def cb(intermediate_result):
-            if stop(intermediate_result.x):
-                raise StopIteration
+        it = [0]
 
-        r = minimize(win.fun, v0, jac=True, method="L-BFGS-B", callback=cb,
-                     options={"maxiter": opts.max_iter, "ftol": opts.ftol, "gtol": opts.gtol, "maxcor": opts.history})
-        if r.status == 99:
-            return win.best[1], int(r.nit), True, "stopped by callback"
+        def cb(intermediate_result):
+            it[0] += 1
+            check(intermediate_result.x)
+
+        try:
+            r = minimize(win.fun, v0, jac=True, method="L-BFGS-B", callback=cb,
+                         options={"maxiter": opts.max_iter, "ftol": opts.ftol, "gtol": opts.gtol,
+                                  "maxcor": opts.history})
+        except _Stopped:
+            return best_or(v0), it[0], True, reason[0]
         # status 1 is the iteration limit, which windowed solving uses on purpose
         return r.x, int(r.nit), r.status in (0, 1), str(r.message)
     if opts.method == "nlopt":
@@ -309,13 +379,16 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callab
             if grad.size > 0:
                 grad[:] = g
             it[0] += 1
-            if stop(v):
+            why = stop(v)
+            if why:
+                reason.append(why)
                 raise nlopt.ForcedStop
             return val
 
         if win.hard:
             opt = nlopt.opt(nlopt.AUGLAG_EQ, n)
             local.set_ftol_rel(opts.ftol)
+            local.set_maxeval(opts.max_iter)
             opt.set_local_optimizer(local)
 
             def h(result, v, grad):
@@ -324,9 +397,10 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callab
                 if grad.size > 0:
                     grad[:] = jac
 
-            m = sum(len(t.residuals(win.state(torch.from_numpy(v0).float()))) * 3 for t in win.hard)
+            with torch.no_grad():
+                m = sum(t.residuals(win.state(torch.from_numpy(v0).float())).numel() for t in win.hard)
             opt.add_equality_mconstraint(h, np.full(m, 1e-4))
-            opt.set_maxeval(opts.max_iter * 5)
+            opt.set_maxeval(opts.max_iter * 10)
         else:
             opt = local
             opt.set_maxeval(opts.max_iter)
@@ -336,12 +410,11 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callab
             v = opt.optimize(v0.copy())
             return v, it[0], True, f"nlopt result code {opt.last_optimize_result()}"
         except nlopt.ForcedStop:
-            return win.best[1] if win.best[1] is not None else v0, it[0], True, "stopped by callback"
+            return best_or(v0), it[0], True, reason[0] if reason else "stopped"
+        except NonFiniteTermError:
+            raise
         except (nlopt.RoundoffLimited, RuntimeError, ValueError) as e:
-            if isinstance(e, NonFiniteTermError):
-                raise
-            best = win.best[1] if win.best[1] is not None else v0
-            return best, it[0], False, f"nlopt failed ({type(e).__name__}: {e}); kept the best iterate"
+            return best_or(v0), it[0], False, f"nlopt failed ({type(e).__name__}: {e}); kept the best iterate"
     # torch-native paths
     v = torch.tensor(v0, dtype=torch.float32, requires_grad=True)
     if opts.method == "torch":
@@ -349,29 +422,34 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions, stop: Callab
                                 tolerance_change=opts.ftol, tolerance_grad=opts.gtol, line_search_fn="strong_wolfe")
 
         def closure():
-            opt.zero_grad()
             val, g = win.fun(v.detach().double().numpy())
             v.grad = torch.from_numpy(g).float()
+            check(win.best[1])
             return torch.tensor(val)
 
-        opt.step(closure)
+        try:
+            opt.step(closure)
+        except _Stopped:
+            return best_or(v0), win.nfev, True, reason[0]
         n_iter = opt.state[opt._params[0]].get("n_iter", 0)
         return v.detach().double().numpy(), int(n_iter), True, "torch L-BFGS finished"
     opt = torch.optim.Adam([v], lr=opts.adam_lr)
-    t0, it = time.perf_counter(), 0
-    while it < opts.max_iter * 5 and (opts.time_budget is None or time.perf_counter() - t0 < opts.time_budget):
-        opt.zero_grad()
-        _, g = win.fun(v.detach().double().numpy())
-        v.grad = torch.from_numpy(g).float()
-        opt.step()
-        it += 1
-        if stop(v.detach().double().numpy()):
-            break
-    return win.best[1], it, True, "adam finished"
+    it = 0
+    try:
+        while it < opts.max_iter * 5:
+            _, g = win.fun(v.detach().double().numpy())
+            v.grad = torch.from_numpy(g).float()
+            opt.step()
+            it += 1
+            check(v.detach().double().numpy())
+    except _Stopped:
+        return best_or(v0), it, True, reason[0]
+    return best_or(v0), it, True, "adam finished"
 
 
 def window_starts(free: np.ndarray, window: int, overlap: int) -> list[int]:
-    """Start frames of the windows that cover every free frame, stepping by window - overlap."""
+    """Start frames of the windows that cover every free frame, stepping by window - overlap;
+    past a stretch of fixed frames the next window starts at the next free frame."""
     idx = np.nonzero(free)[0]
     if len(idx) == 0:
         return []
@@ -388,10 +466,18 @@ def window_starts(free: np.ndarray, window: int, overlap: int) -> list[int]:
 
 
 def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = SolverOptions()) -> MAPResult:
-    """Solve the MAP problem window by window; see the module docstring."""
+    """Solve the MAP problem window by window; see the module docstring.
+
+    numpy's BLAS runs on one thread meanwhile: the optimisers' vector updates are far too
+    small to share, and on a busy machine its spinning threads cost L-BFGS-B about
+    20 ms per iteration (60 times its own work)."""
+    with threadpool_limits(1, user_api="blas"):
+        return _solve(objective, problem, options)
+
+
+def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MAPResult:
     prior, spec = objective.prior, objective.spec
     norm = prior.normalizer
-    opts = options
     x = problem.x0.clone().float()
     n, d = x.shape
     free = np.asarray(problem.free, bool)
@@ -408,7 +494,7 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
     warns: list[str] = []
     windows: list[dict] = []
     success = True
-    committed = 0                      # frames [0, committed) are final
+    committed = 0                      # the root state is known up to frame `committed`
     root_state = problem.start         # state before frame `committed`
     lead_n = 2
     stopped = False
@@ -453,20 +539,22 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
         win.rebase()
         v0 = win.pack()
         start_vals = win.values(v0)
-        for k, v in start_vals.items():
-            terms_start[k] = terms_start.get(k, 0.0) + v
+        for k, val in start_vals.items():
+            terms_start[k] = terms_start.get(k, 0.0) + val
         info["fun_start"] = sum(start_vals.values())
 
-        def stop(v: np.ndarray) -> bool:
-            if opts.callback is None:
-                return False
-            return bool(opts.callback({"window": w_i, "frames": (int(s), int(e)), "x": v, "best": win.best[0]}))
-
         t0 = time.perf_counter()
+
+        def stop(v: np.ndarray) -> str | None:
+            if opts.callback is not None and opts.callback(
+                    {"window": w_i, "frames": (int(s), int(e)), "x": v, "best": win.best[0]}):
+                return "stopped by callback"
+            if opts.time_budget is not None and time.perf_counter() - t0 >= opts.time_budget:
+                return "time budget reached"
+            return None
+
         try:
             v, it, ok, msg = _local_solve(win, v0, opts, stop)
-        except StopIteration:
-            v, it, ok, msg = win.best[1], 0, True, "stopped by callback"
         except NonFiniteTermError as err:
             v = win.best[1] if win.best[1] is not None else v0
             it, ok, msg = 0, False, str(err)
@@ -478,8 +566,7 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
             warns.append(f"window {w_i}: the optimiser ended above its best iterate; kept the best")
             v = win.best[1]
             end_vals = win.values(v)
-        if "stopped by callback" in msg:
-            stopped = True
+        stopped = msg == "stopped by callback"
         timings["prior"] += win.prior_seconds
         nit += it
         nfev += win.nfev + pso_evals
@@ -487,8 +574,8 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
         if not ok:
             messages.append(f"window {w_i}: {msg}")
         # write the window back, with contacts predicted by the prior
-        xw, _ = win.unpack(torch.from_numpy(v).float())
         with torch.no_grad():
+            xw, _ = win.unpack(torch.from_numpy(v).float())
             _, probs = prior.nll_and_contacts(xw, context)
         xw[:, p:] = torch.where(torch.from_numpy(free_local)[:, None], (probs > 0.5).float(), xw[:, p:])
         x[s:e] = xw
@@ -497,7 +584,8 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
         info.update(fun=sum(end_vals.values()), nit=it, nfev=win.nfev, message=msg)
         windows.append(info)
         if opts.progress:
-            log.info("window %d/%d frames %d-%d: %.1f -> %.1f", w_i + 1, len(starts), s, e - 1, f_start, info["fun"])
+            log.info("window %d/%d frames %d-%d: %.1f -> %.1f", w_i + 1, len(starts), s, e - 1,
+                     info["fun_start"], info["fun"])
         if stopped:
             messages.append("stopped by callback")
             break
@@ -513,14 +601,25 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
 
 @torch.no_grad()
 def seam_report(objective: MAPObjective, x: Tensor, start: RootStart, boundaries: list[int]) -> dict[str, float]:
-    """Largest mean joint acceleration (m/s^2) at window boundaries against inner frames'."""
-    from .features import decode_positions
+    """Largest mean joint acceleration (m/s^2) at window boundaries against inner frames'.
 
+    Decodes ``SEAM_CHUNK`` frames at a time, so its memory does not grow with the length."""
     if len(boundaries) < 2:
         return {}
-    raw = objective.prior.normalizer.denormalize(x.double())
-    pos = decode_positions(raw, objective.spec, objective.skeleton, start)
-    acc = ((pos[2:] - 2 * pos[1:-1] + pos[:-2]) * objective.spec.fps ** 2).norm(dim=-1).mean(-1).numpy()
+    norm, spec = objective.prior.normalizer, objective.spec
+    n = len(x)
+    acc = np.empty(max(n - 2, 0))
+    state = start
+    for a in range(0, n - 2, SEAM_CHUNK):
+        lo = max(a - 2, 0)            # two frames before the chunk give its first accelerations
+        if lo > 0:
+            state = advance(state, norm.denormalize(x[prev_lo:lo].double()), spec)
+        prev_lo = lo
+        b = min(a + SEAM_CHUNK, n - 2)
+        raw = norm.denormalize(x[lo:b + 2].double())
+        pos = decode_positions(raw, spec, objective.skeleton, state if lo > 0 else start)
+        a_chunk = ((pos[2:] - 2 * pos[1:-1] + pos[:-2]) * spec.fps ** 2).norm(dim=-1).mean(-1).numpy()
+        acc[a:b] = a_chunk[a - lo:]
     at = np.zeros(len(acc), bool)
     for b in boundaries[1:]:
         at[max(b - 2, 0):min(b + 1, len(acc))] = True

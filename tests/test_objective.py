@@ -1,0 +1,177 @@
+"""MAP objective terms: float64 gradients (gradcheck) through real poses, the nearest-point
+path distance, window decoding against whole-clip decoding, and non-finite terms."""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+import torch
+
+from motionopt import bvh
+from motionopt import rotations as R
+from motionopt.features import advance, decode, decode_positions, encode, to_model_motion
+from motionopt.kinematics import fk_matrices
+from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
+                                 PoseFidelityTerm, SmoothnessTerm, WindowState, keyframe_term,
+                                 nearest_on_polyline_sq)
+
+from priorkit import cmu_clips, features, tiny_prior
+from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
+
+LEAD, T = 2, 5          # solved frames before the window, window frames
+FIRST = 10              # global index of the window's first frame
+
+
+@functools.lru_cache(maxsize=None)
+def clip_pose():
+    """Real local rotations (as rotation vectors) and root positions of LEAD + T frames of a
+    CMU excerpt, float64, with the model skeleton's parents and offsets."""
+    prior = tiny_prior()
+    x = features(cmu_clips()[0])[FIRST - LEAD:FIRST + T].double()
+    raw = prior.normalizer.denormalize(x)
+    quats, root = decode(raw, prior.spec)
+    return R.quat_to_axis_angle(quats), root, prior.skeleton
+
+
+def state_of(aa: torch.Tensor, root: torch.Tensor, contacts: torch.Tensor | None = None) -> WindowState:
+    """A window state (float64) of rotation vectors (LEAD+T, J, 3) and root (LEAD+T, 3)."""
+    _, _, sk = clip_pose()
+    rot = R.axis_angle_to_matrix(aa)
+    pos = fk_matrices(sk.parents, rot, root, torch.as_tensor(sk.offsets, dtype=aa.dtype))
+    if contacts is None:
+        contacts = torch.ones(T, 2, dtype=aa.dtype)
+    return WindowState(np.arange(FIRST, FIRST + T), LEAD, torch.zeros(T, 4, dtype=aa.dtype), None, rot, root, pos,
+                       contacts, torch.zeros(T, dtype=aa.dtype), 30.0)
+
+
+def real_targets():
+    """Targets near the clip: its own root path and poses, moved a little."""
+    aa, root, sk = clip_pose()
+    rng = np.random.default_rng(0)
+    n = FIRST + T + 3
+    root_t = np.zeros((n, 3))
+    root_t[FIRST - LEAD:FIRST + T] = root.numpy() + rng.normal(0, 0.02, (LEAD + T, 3))
+    rot_t = np.tile([1.0, 0, 0, 0], (n, aa.shape[1], 1))
+    noisy = aa + torch.from_numpy(rng.normal(0, 0.05, aa.shape))
+    rot_t[FIRST - LEAD:FIRST + T] = R.axis_angle_to_quat(noisy).numpy()
+    return root_t, rot_t
+
+
+def terms():
+    aa, root, sk = clip_pose()
+    root_t, rot_t = real_targets()
+    xz = root[LEAD:, [0, 2]].numpy()
+    # a bent path passing near (not through) the clip's root path, longer than the window
+    path = np.stack([xz[0] + [0.03, -0.2], xz[2] + [-0.04, 0.01], xz[-1] + [0.05, 0.3]])
+    timed = np.zeros((FIRST + T + 3, 2))
+    timed[FIRST:FIRST + T] = xz + 0.05
+    mask = np.zeros(FIRST + T + 3, bool)
+    mask[FIRST + 1:FIRST + 4] = True
+    hand = sk.names.index("rHand")
+    return {
+        "path nearest-point": PathTerm(path, sigma=0.05),
+        "path timed": PathTerm(path, sigma=0.3, targets=timed, mask=mask),
+        "pose fidelity": PoseFidelityTerm(root_t, rot_t, 0.02, 0.05, mask=mask),
+        "pose fidelity, some joints": PoseFidelityTerm(None, rot_t, 0.02, 0.05, joints=[0, 3, 7]),
+        "keyframes": keyframe_term(np.array([FIRST + 2]), root_t, rot_t),
+        "joint position": JointPositionTerm(hand, {FIRST + 1: np.array([0.1, 1.2, 0.3]),
+                                                  FIRST + 4: np.array([0.0, 1.0, 0.2])}, sigma=0.01),
+        "contact": ContactTerm([sk.names.index("rFoot"), sk.names.index("lFoot")], np.array([0.05, 0.06])),
+        "smoothness": SmoothnessTerm(10.0),
+    }
+
+
+@pytest.mark.parametrize("name", list(terms()))
+def test_term_gradients_gradcheck_float64(name):
+    term = terms()[name]
+    aa, root, _ = clip_pose()
+    contacts = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [0.0, 0.0]], dtype=torch.float64)
+
+    def energy(a, r):
+        return term.energy(state_of(a, r, contacts))
+
+    a = aa.clone().requires_grad_()
+    r = root.clone().requires_grad_()
+    assert energy(a, r).item() > 0
+    assert torch.autograd.gradcheck(energy, (a, r), eps=1e-6, atol=1e-5, rtol=1e-4)
+
+
+def test_terms_batch_like_single_windows():
+    """A batch of windows (as the particle swarm evaluates) gives each window's own energy."""
+    aa, root, _ = clip_pose()
+    other = aa + 0.05
+    batch = state_of(torch.stack((aa, other)), torch.stack((root, root + 0.1)))
+    for name, term in terms().items():
+        both = term.energy(batch)
+        one = torch.stack((term.energy(state_of(aa, root)), term.energy(state_of(other, root + 0.1))))
+        torch.testing.assert_close(both, one, msg=name)
+
+
+def test_window_cache_follows_the_frames():
+    """Targets cached for one window are not reused for another."""
+    aa, root, _ = clip_pose()
+    term = terms()["pose fidelity"]
+    first = term.energy(state_of(aa, root))
+    shifted = state_of(aa, root)
+    shifted.frames = shifted.frames + 1
+    fresh = terms()["pose fidelity"]
+    torch.testing.assert_close(term.energy(shifted), fresh.energy(shifted))
+    assert not torch.equal(term.energy(shifted), first)
+
+
+def brute_force_nearest_sq(points: np.ndarray, path: np.ndarray) -> np.ndarray:
+    best = np.full(len(points), np.inf)
+    for a, b in zip(path[:-1], path[1:]):
+        for i, p in enumerate(points):
+            for t in np.linspace(0, 1, 2001):
+                best[i] = min(best[i], float(((a + t * (b - a) - p) ** 2).sum()))
+    return best
+
+
+def test_nearest_on_polyline_matches_brute_force():
+    rng = np.random.default_rng(3)
+    path = np.cumsum(rng.normal(0, 1, (5, 2)), axis=0)
+    points = rng.normal(0, 2, (12, 2))
+    got = nearest_on_polyline_sq(torch.from_numpy(points), torch.from_numpy(path)).numpy()
+    want = brute_force_nearest_sq(points, path)
+    np.testing.assert_array_less(got, want + 1e-12)
+    np.testing.assert_allclose(got, want, atol=1e-4)
+
+
+def test_window_state_decodes_like_the_whole_clip():
+    """Positions of a window decoded after its lead frames from an advanced root state equal
+    the positions of the same frames decoded from the clip's start."""
+    prior = tiny_prior()
+    x = features(cmu_clips()[0])[:60]
+    _, start = encode(to_model_motion(bvh.load(cmu_clips()[0]), prior.spec), prior.spec)
+    norm = prior.normalizer
+    s, e = 30, 50
+    obj = MAPObjective(prior, prior.skeleton, [])
+    state_before_lead = advance(start, norm.denormalize(x[:s - LEAD].double()), prior.spec)
+    st = obj.window_state(x[s:e], np.arange(s, e), x[:s], norm.denormalize(x[s - LEAD:s].double()).float(),
+                          state_before_lead)
+    whole = decode_positions(norm.denormalize(x.double()), prior.spec, prior.skeleton, start)
+    # float32 window against the float64 whole clip: 0.1 mm
+    torch.testing.assert_close(st.positions.double(), whole[s - LEAD:e], atol=1e-4, rtol=0)
+    assert st.prior_nll.shape == (e - s,) and torch.isfinite(st.prior_nll).all()
+
+
+def test_non_finite_term_names_the_term():
+    aa, root, _ = clip_pose()
+    root_t, rot_t = real_targets()
+    root_t[FIRST + 2, 1] = np.nan
+    term = PoseFidelityTerm(root_t, None, name="bad_target")
+    assert not torch.isfinite(term.energy(state_of(aa, root)))
+    err = NonFiniteTermError("bad_target", "in frames 10-14")
+    assert "'bad_target'" in str(err) and "10-14" in str(err) and err.term == "bad_target"
+
+
+def test_fidelity_needs_a_target():
+    with pytest.raises(ValueError, match="root or rotation"):
+        PoseFidelityTerm(None, None)
+
+
+def test_path_needs_two_points():
+    with pytest.raises(ValueError, match="at least 2 points"):
+        PathTerm(np.zeros((1, 2)))
