@@ -1,0 +1,283 @@
+"""The task commands (path-follow, denoise, inbetween, complete, edit) run as a user runs
+them, on short shipped clips with the shipped priors and tiny iteration budgets: outputs
+round-trip, constraints hold loosely, and every invalid input fails in one line, writing
+nothing."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motionopt import bvh
+from motionopt.cli import main
+from motionopt.demo import noisy_copy
+from motionopt.metrics import jerk
+from motionopt.plot import body_root
+from priors.checkpoint import CHECKPOINT_DIR
+from problems.path_follow import read_path_csv
+
+from priorkit import DATA
+
+WALK = DATA / "bandai-walk-normal-001.bvh"    # 30 fps, 60 frames, Bandai skeleton
+MARTIAL = DATA / "cmu-martial-03-step.bvh"    # 120 fps, 240 frames, CMU skeleton
+SALSA = DATA / "cmu-salsa-01-steps.bvh"       # 60 fps, 150 frames, CMU skeleton
+TINY = ("--iterations", "3", "--pso-particles", "4", "--pso-iterations", "1")
+COMMANDS = ("path-follow", "denoise", "inbetween", "complete", "edit")
+
+
+def needs(*names: str) -> None:
+    for name in names:
+        if not (CHECKPOINT_DIR / name).exists():
+            pytest.skip(f"needs the shipped checkpoint priors/checkpoints/{name}")
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory) -> dict[str, Path]:
+    """Short cuts of the shipped excerpts (a second or so), saved as the user's files."""
+    folder = tmp_path_factory.mktemp("clips")
+    cuts = {"walk": (WALK, 0, 30), "martial": (MARTIAL, 0, 121), "martial-odd": (MARTIAL, 0, 120),
+            "salsa": (SALSA, 0, 60)}
+    out = {}
+    for name, (src, a, b) in cuts.items():
+        out[name] = bvh.save(bvh.load(src)[a:b], folder / f"{name}.bvh")
+    noisy = bvh.load(out["martial"])
+    out["martial-noisy"] = bvh.save(noisy_copy(noisy, 0.03, seed=1), folder / "martial-noisy.bvh")
+    return out
+
+
+def assert_round_trips(out: Path, source: Path, frames: int) -> None:
+    """OUT reads back with the source's joints, channels and frame time, and ``frames`` frames."""
+    sk_o, values, ft_o = bvh.read_channels(out)
+    sk_i, _, ft_i = bvh.read_channels(source)
+    assert sk_o.names == sk_i.names and sk_o.channels == sk_i.channels
+    assert ft_o == pytest.approx(ft_i, rel=1e-6)
+    assert len(values) == frames
+    a, b = bvh.load(out), bvh.load(source)
+    assert a.source_unit == b.source_unit
+    np.testing.assert_allclose(a.skeleton.offsets, b.skeleton.offsets, atol=1e-9)
+
+
+def kept_values(path: Path, frames: slice) -> np.ndarray:
+    return bvh.read_channels(path)[1][frames]
+
+
+# ---- each command end to end ----------------------------------------------------------------------
+
+def test_path_follow_continues_the_seed_along_the_path(capsys, clips, tmp_path):
+    needs("bandai-locomotion-ccnet.pt")
+    seed = bvh.load(clips["walk"])
+    hips = body_root(seed.skeleton)  # the Bandai files' ROOT stays on the floor; the hips move
+    root = seed.positions()[:, hips, [0, 2]]
+    heading = (root[-1] - root[-10]) / np.linalg.norm(root[-1] - root[-10])
+    end = root[-1] + 1.5 * heading
+    path = tmp_path / "path.csv"
+    path.write_text(f"x,z\n{root[-1][0]},{root[-1][1]}\n{end[0]},{end[1]}\n")
+    out, report = tmp_path / "out.bvh", tmp_path / "report.json"
+    rc, stdout, err = run(capsys, "path-follow", clips["walk"], "--path", path, "--out", out, "--seconds", 0.5,
+                          "--report", report, "--plot", *TINY)
+    assert rc == 0, err
+    assert_round_trips(out, clips["walk"], 30 + 15)
+    motion = bvh.load(out)
+    new = motion.positions()[30:, hips, [0, 2]]
+    np.testing.assert_allclose(motion.positions()[:30], seed.positions(), atol=0.01)  # the seed stays
+    along = (new - root[-1]) @ heading
+    across = np.abs((new - root[-1]) @ np.array([-heading[1], heading[0]]))
+    assert along[-1] > 0.25 and across.mean() < 0.3  # walked forwards, near the line
+    rep = json.loads(report.read_text())
+    assert rep["input"] == str(clips["walk"]) and rep["output"] == str(out) and rep["task"] == "path-follow"
+    assert rep["command"].startswith("motionopt path-follow ") and "--seconds 0.5" in rep["command"]
+    assert rep["prior"].endswith("bandai-locomotion-ccnet.pt")
+    assert rep["metrics"]["path_distance_cm_mean"] >= 0 and rep["frames"] == 45
+    assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "root distance to the path" in stdout and f"wrote {out}" in stdout
+
+
+def test_denoise_reduces_jitter_and_tells_what_it_does(capsys, clips, tmp_path):
+    needs("cmu-ccnet.pt")
+    out = tmp_path / "clean.bvh"
+    rc, stdout, err = run(capsys, "denoise", clips["martial-noisy"], "--out", out, "--plot", "--verbose", *TINY)
+    assert rc == 0, err
+    assert_round_trips(out, clips["martial-noisy"], 121)
+    before, after = bvh.load(clips["martial-noisy"]), bvh.load(out)
+    import torch
+
+    assert jerk(torch.from_numpy(after.positions()), after.fps) < jerk(torch.from_numpy(before.positions()), before.fps)
+    assert "window 1: frames 0-" in stdout and "term prior:" in stdout and "jitter" in stdout
+    assert out.with_suffix(".png").exists()
+
+
+@pytest.mark.xfail(strict=True, reason="problems.common.back_to_file drops the input's last frames when its length "
+                   "is not a whole number of the prior's frames (120 frames at 120 fps come back as 117)")
+def test_denoise_keeps_the_frame_count_of_any_clip(capsys, clips, tmp_path):
+    needs("cmu-ccnet.pt")
+    out = tmp_path / "out.bvh"
+    rc, _, err = run(capsys, "denoise", clips["martial-odd"], "--out", out, "--iterations", 1, "--quiet")
+    assert rc == 0, err
+    assert bvh.load(out).num_frames == 120
+
+
+def test_inbetween_keeps_the_kept_frames_exactly(capsys, clips, tmp_path):
+    needs("cmu-ccnet.pt")
+    out = tmp_path / "out.bvh"
+    rc, stdout, err = run(capsys, "inbetween", clips["martial"], "--keep", "0:30,90:121", "--out", out, "--plot",
+                          *TINY)
+    assert rc == 0, err
+    assert_round_trips(out, clips["martial"], 121)
+    for kept in (slice(0, 30), slice(90, 121)):
+        np.testing.assert_allclose(kept_values(out, kept), kept_values(clips["martial"], kept), atol=1e-6)
+    assert np.abs(kept_values(out, slice(30, 90)) - kept_values(clips["martial"], slice(30, 90))).max() > 1e-3
+    assert "frames synthesised" in stdout
+
+
+def test_complete_keeps_the_prefix_and_is_silent_with_quiet(capsys, clips, tmp_path):
+    needs("cmu-ccnet.pt")
+    out, report = tmp_path / "out.bvh", tmp_path / "r.json"
+    rc, stdout, err = run(capsys, "complete", clips["salsa"], "--prefix", 30, "--frames", 90, "--out", out,
+                          "--report", report, "--quiet", *TINY)
+    assert rc == 0 and stdout == "" and err == ""
+    assert_round_trips(out, clips["salsa"], 90)
+    # the same poses; the channels may take the other Euler triple of a rotation, as the output
+    # (longer than the input) carries no angle-wrapping hint from it
+    np.testing.assert_allclose(bvh.load(out).positions()[:30], bvh.load(clips["salsa"]).positions()[:30], atol=1e-6)
+    assert json.loads(report.read_text())["settings"]["frames"] == 90
+
+
+def test_edit_moves_the_joint_toward_its_target(capsys, clips, tmp_path):
+    needs("bandai-locomotion-ccnet.pt")
+    targets = tmp_path / "targets.json"
+    targets.write_text(json.dumps([{"joint": "Hand_L", "frame": [10, 12], "offset": [0.0, 0.1, 0.0]}]))
+    out = tmp_path / "out.bvh"
+    rc, stdout, err = run(capsys, "edit", clips["walk"], "--targets", targets, "--out", out, "--iterations", 8)
+    assert rc == 0, err
+    assert_round_trips(out, clips["walk"], 30)
+    before, after = bvh.load(clips["walk"]), bvh.load(out)
+    j = before.skeleton.names.index("Hand_L")
+    want = before.positions()[10:13, j] + [0.0, 0.1, 0.0]
+    error = np.linalg.norm(after.positions()[10:13, j] - want, axis=-1)
+    assert error.max() < 0.07  # from 10 cm, in a few iterations
+    assert "targets met within" in stdout
+
+
+def test_latent_method_denoises_and_completes(capsys, clips, tmp_path):
+    needs("bandai-latent.pt")
+    out = tmp_path / "denoised.bvh"
+    rc, _, err = run(capsys, "denoise", clips["walk"], "--method", "latent", "--out", out, "--quiet")
+    assert rc == 0, err
+    assert_round_trips(out, clips["walk"], 30)
+    out = tmp_path / "completed.bvh"
+    rc, stdout, err = run(capsys, "complete", clips["walk"], "--method", "latent", "--prefix", 10, "--frames", 45,
+                          "--out", out, "--iterations", 1)
+    assert rc == 0, err
+    assert_round_trips(out, clips["walk"], 45)
+    assert "latent codes of" in stdout and "refined in" in stdout
+
+
+def test_force_overwrites_and_without_it_nothing_changes(capsys, clips, tmp_path):
+    needs("bandai-latent.pt")
+    out = tmp_path / "out.bvh"
+    out.write_text("mine")
+    argv = ("denoise", clips["walk"], "--method", "latent", "--out", out, "--quiet")
+    rc, _, err = run(capsys, *argv)
+    assert rc == 1 and err.strip() == f"motionopt denoise: error: {out} exists; pass --force to overwrite it"
+    assert out.read_text() == "mine"
+    rc, _, err = run(capsys, *argv, "--force")
+    assert rc == 0, err
+    assert bvh.load(out).num_frames == 30
+
+
+# ---- invalid input: one line on stderr, non-zero exit, nothing written -----------------------------
+
+def _files(tmp: Path) -> dict[str, Path]:
+    (tmp / "one.csv").write_text("x,z\n0,0\n")
+    (tmp / "bad.csv").write_text("x,z\n0,0\n1,north\n")
+    (tmp / "header.csv").write_text("x,y\n0,0\n1,1\n")
+    (tmp / "timed.csv").write_text("t,x,z\n0.5,0,0\n1.5,1,1\n")
+    (tmp / "nose.json").write_text(json.dumps([{"joint": "Nose", "frame": 3, "offset": [0, 0.1, 0]}]))
+    (tmp / "hand.json").write_text(json.dumps([{"joint": "Hand_L", "frame": 3, "offset": [0, 0.1, 0]}]))
+    return {p.stem: p for p in tmp.iterdir()}
+
+
+INVALID = [
+    # (case, argv after the command and clip, words the error must hold)
+    ("path with one point", ("path-follow", "walk", "--path", "{one}"), "at least 2 points"),
+    ("path with a bad number", ("path-follow", "walk", "--path", "{bad}"), "bad.csv:3"),
+    ("path without x,z header", ("path-follow", "walk", "--path", "{header}"), "header.csv:1"),
+    ("timed path with --speed", ("path-follow", "walk", "--path", "{timed}", "--speed", "1"), "drop --speed"),
+    ("keep range outside the clip", ("inbetween", "martial", "--keep", "0:30,100:200"), "100:200"),
+    ("overlapping keep ranges", ("inbetween", "martial", "--keep", "0:30,20:60"), "overlap"),
+    ("keep range not like a slice", ("inbetween", "martial", "--keep", "0-30"), "START:STOP"),
+    ("prefix longer than the clip", ("complete", "salsa", "--prefix", "61", "--frames", "90"), "--prefix 61"),
+    ("frames not after the prefix", ("complete", "salsa", "--prefix", "30", "--frames", "20"), "--frames 20"),
+    ("target joint not in the skeleton", ("edit", "walk", "--targets", "{nose}"), "'Nose'"),
+    ("skeleton the named prior cannot model", ("denoise", "walk", "--prior", "{cmu}"), "lacks"),
+    ("skeleton no shipped prior models", ("denoise", "handless"), "no shipped prior"),
+    ("latent checkpoint where an ar one is wanted", ("denoise", "walk", "--prior", "{latent}"), "--method latent"),
+    ("latent spatial edit", ("edit", "walk", "--targets", "{hand}", "--method", "latent"), "--method ar"),
+    ("unknown optimiser", ("denoise", "walk", "--optimizer", "bfgs"), "scipy, nlopt, torch, adam"),
+    ("swarm off and on", ("inbetween", "martial", "--keep", "0:30", "--no-pso", "--pso-particles", "4"), "--no-pso"),
+    ("optimiser with latent", ("denoise", "walk", "--method", "latent", "--optimizer", "nlopt"), "--method ar"),
+    ("output not BVH", ("denoise", "walk", "--out", "{tmp}/out.txt"), ".bvh"),
+    ("output folder missing", ("denoise", "walk", "--out", "{tmp}/nowhere/out.bvh"), "does not exist"),
+    ("existing report", ("denoise", "walk", "--report", "{nose}"), "exists"),
+    ("report not JSON", ("denoise", "walk", "--report", "{tmp}/report.txt"), ".json"),
+]
+
+
+@pytest.mark.parametrize("case,argv,words", INVALID, ids=[c[0] for c in INVALID])
+def test_invalid_input_fails_in_one_line_and_writes_nothing(capsys, clips, tmp_path, case, argv, words):
+    needs("cmu-ccnet.pt", "bandai-locomotion-ccnet.pt", "bandai-latent.pt")
+    files = _files(tmp_path)
+    handless = tmp_path / "handless.bvh"
+    bvh.save(bvh.load(clips["walk"]).remove_joints("*Hand*"), handless)
+    names = {**{k: str(v) for k, v in files.items()}, "tmp": str(tmp_path),
+             "cmu": str(CHECKPOINT_DIR / "cmu-ccnet.pt"), "latent": str(CHECKPOINT_DIR / "bandai-latent.pt")}
+    command, clip, *rest = argv
+    rest = [a.format(**names) for a in rest]
+    for flag, default in (("--out", tmp_path / "out.bvh"), ("--report", tmp_path / "report.json")):
+        if flag not in rest:
+            rest += [flag, str(default)]
+    before = set(tmp_path.rglob("*"))
+    rc, stdout, err = run(capsys, command, handless if clip == "handless" else clips[clip], *rest, "--plot")
+    assert rc != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"motionopt {command}: error: "), err
+    assert words in lines[0]
+    assert stdout == ""
+    assert set(tmp_path.rglob("*")) == before  # no BVH, report or picture
+
+
+# ---- the path reader and the help -------------------------------------------------------------------
+
+def test_read_path_csv_columns_times_and_line_numbers(tmp_path):
+    p = tmp_path / "p.csv"
+    p.write_text("\ufeffz, x ,T\n\n1,0,0.5\n2,0.5,1.0\n")
+    points, times = read_path_csv(p)
+    np.testing.assert_array_equal(points, [[0, 1], [0.5, 2]])
+    np.testing.assert_array_equal(times, [0.5, 1.0])
+    p.write_text("x,z\n0,0\n1,1\n")
+    assert read_path_csv(p)[1] is None
+    for text, where in (("x,z\n0,0\n1\n", ":3:"), ("x,z\n0,0\n1,inf\n", ":3:"), ("t,x,z\n1,0,0\n1,1,1\n", ":3:"),
+                        ("t,x,z\n-1,0,0\n1,1,1\n", ":2:"), ("", "empty"), ("x,z,x\n0,0,0\n1,1,1\n", ":1:")):
+        p.write_text(text)
+        with pytest.raises(ValueError, match=where):
+            read_path_csv(p)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help_names_every_common_option(capsys, command):
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for option in ("--out", "--prior", "--seed", "--report", "--quiet", "--verbose", "--plot", "--force", "--fps",
+                   "--unit", "--iterations", "--no-pso", "--pso-particles", "--pso-iterations", "--optimizer"):
+        assert option in text
+    assert ("--method {ar,latent}" in text) == (command != "path-follow")
