@@ -256,10 +256,17 @@ def to_file_motion(model: Motion, original: Motion) -> Motion:
     The result has the original's joints, channels, unit and frame rate (resampled from
     the prior's rate). Modelled joints take the model's rotations; the joints the prior
     leaves out (fingers, eyes) and any joints above the model root keep the original's
-    values, frame by frame, holding the last original frame beyond its end.
+    values, frame by frame, holding the last original frame beyond its end. A result up
+    to one prior frame shorter than the input (the input's length is rarely a whole
+    number of prior frames) holds its last frame, so the frame count is the input's.
     """
     sk = original.skeleton
     out = model.resample(original.fps)
+    short = original.num_frames - out.num_frames
+    if 0 < short <= original.fps / model.fps + 1:
+        # the prior's last frame falls just before the input's last: hold it to keep the length
+        out = out.with_frames(np.concatenate([out.rotations, np.repeat(out.rotations[-1:], short, 0)]),
+                              np.concatenate([out.root, np.repeat(out.root[-1:], short, 0)]))
     n = out.num_frames
     src = np.minimum(np.arange(n), original.num_frames - 1)
     rotations = original.rotations[src].copy()
@@ -285,6 +292,6 @@ def to_file_motion(model: Motion, original: Motion) -> Motion:
         rotations[:, r] = R.quat_multiply(inv, world_rot).numpy()
         translations[:, r] = R.quat_apply(inv, world_pos - ppos[:, p]).numpy()
     has_tr = original.translations is not None or r != 0
-    hint = original.euler_hint if n == original.num_frames else None
+    hint = None if original.euler_hint is None else original.euler_hint[src]
     return Motion(sk, rotations, translations[:, 0].copy(), original.fps,
                   translations=translations if has_tr else None, source_unit=original.source_unit, euler_hint=hint)

@@ -21,13 +21,20 @@ class UserError(Exception):
     """A problem with what the user asked for, reported in one line."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors in one line on stderr (``motionopt CMD: error: ...``), exit 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="motionopt",
         description="Edit human motion by optimization, with learned motion priors.",
     )
     parser.add_argument("--version", action="version", version="motionopt 0.1.0")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         try:
             module = importlib.import_module(f"{__name__}.{name}")
@@ -54,7 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     level = logging.ERROR if getattr(args, "quiet", False) else (
         logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING)
-    logging.basicConfig(level=level, format="%(levelname)s: %(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
+    for name in ("motionopt", "priors", "problems"):
+        logging.getLogger(name).setLevel(level)
     try:
         return int(args.func(args) or 0)
     except (UserError, BVHError, FileExistsError, FileNotFoundError, KeyError, ValueError) as e:
