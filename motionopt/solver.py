@@ -29,7 +29,7 @@ METHODS = ("scipy", "nlopt", "torch", "adam")
 #: Cosine components over a window added to the per-frame variables (see ``_Window``).
 BASIS_SIZE = 8
 #: Frames decoded at a time by ``seam_report`` (bounds its memory on long sequences).
-SEAM_CHUNK = 1024
+SEAM_CHUNK = 256
 
 
 class StopSolve(Exception):
@@ -244,6 +244,7 @@ class _Window:
         return st
 
     def energies(self, v: Tensor) -> dict[str, Tensor]:
+        """Every active term's energy but the hard constraints'."""
         e = self.obj.energies(self.state(v))
         for term in self.hard:
             e.pop(term.name, None)
@@ -257,9 +258,14 @@ class _Window:
     # --- scalar objective with gradient -----------------------------------------------
     def fun(self, v_np: np.ndarray) -> tuple[float, np.ndarray]:
         v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
-        e = self.energies(v)
+        st = self.state(v)
+        e = self.obj.energies(st)
+        for term in self.hard:
+            e.pop(term.name, None)
         self._check(e)
         total = sum(e.values())
+        if self.hard:  # nlopt asks for the constraints at the same point next: one pass for both
+            self._constraints = (v_np.tobytes(), *self._residuals_and_jacobian(st, v))
         (g,) = torch.autograd.grad(total, v)
         self.nfev += 1
         f = float(total.detach())
@@ -274,13 +280,19 @@ class _Window:
         with torch.no_grad():
             return {k: float(t) for k, t in self.energies(torch.tensor(v_np, dtype=torch.float32)).items()}
 
+    def _residuals_and_jacobian(self, st, v: Tensor) -> tuple[np.ndarray, np.ndarray]:
+        r = torch.cat([t.residuals(st).reshape(-1) for t in self.hard])
+        rows = [torch.autograd.grad(ri, v, retain_graph=True)[0] for ri in r]
+        jac = torch.stack(rows) if rows else torch.zeros(0, len(v))
+        return r.detach().double().numpy(), jac.double().numpy()
+
     def constraint_residuals(self, v_np: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hard constraint residuals (m,) and their Jacobian (m, n)."""
+        cached = getattr(self, "_constraints", None)
+        if cached is not None and cached[0] == v_np.tobytes():
+            return cached[1], cached[2]
         v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
-        st = self.state(v)
-        r = torch.cat([t.residuals(st).reshape(-1) for t in self.hard])
-        jac = torch.stack([torch.autograd.grad(ri, v, retain_graph=True)[0] for ri in r]) if len(r) else torch.zeros(0, len(v))
-        return r.detach().double().numpy(), jac.double().numpy()
+        return self._residuals_and_jacobian(self.state(v), v)
 
 
 def _pso_rollout(win: _Window, prior, context: Tensor, first: int, unknown: Tensor, base_noise: Tensor,
@@ -481,6 +493,9 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
     x = problem.x0.clone().float()
     n, d = x.shape
     free = np.asarray(problem.free, bool)
+    if d != spec.dim or free.shape != (n,):
+        raise ValueError(f"the problem has x0 of shape {tuple(x.shape)} and free of shape {free.shape}; the prior "
+                         f"needs x0 (N, {spec.dim}) and free (N,)")
     known = ~torch.isnan(x).any(-1).numpy()
     rf = prior.receptive_field
     p = spec.pose_dim
