@@ -190,6 +190,9 @@ class _Window:
         self.nfev = 0
         self.prior_seconds = 0.0
         self.best = (math.inf, None)
+        self.best_terms: dict[str, float] = {}
+        self.first_terms: dict[str, float] | None = None
+        self.seen: dict[int, float] = {}   # objective of every evaluated point, by hash
         self.hard = [t for t in objective.terms if isinstance(t, JointPositionTerm) and t.hard and t.active(frames)]
         self._base_rot: Tensor | None = None
         self._whiten: Tensor | None = None
@@ -209,6 +212,7 @@ class _Window:
         with torch.no_grad():
             _, self.contacts = self.obj.prior.nll_and_contacts(self.x, self.context)
         self.best = (math.inf, None)
+        self.best_terms, self.first_terms, self.seen = {}, None, {}
 
     def pack(self) -> np.ndarray:
         """The variables of the current base: all zeros."""
@@ -268,15 +272,20 @@ class _Window:
             self._constraints = (v_np.tobytes(), *self._residuals_and_jacobian(st, v))
         (g,) = torch.autograd.grad(total, v)
         self.nfev += 1
-        f = float(total.detach())
+        terms = {k: float(t.detach()) for k, t in e.items()}
+        f = sum(terms.values())
         g = g.numpy().astype(np.float64)
         if not np.isfinite(g).all():
             raise NonFiniteTermError("gradient", f"in frames {self.frames[0]}-{self.frames[-1]}")
+        if self.first_terms is None:
+            self.first_terms = terms
+        self.seen[hash(v_np.tobytes())] = f
         if f < self.best[0]:
-            self.best = (f, v_np.copy())
+            self.best, self.best_terms = (f, v_np.copy()), terms
         return f, g
 
     def values(self, v_np: np.ndarray) -> dict[str, float]:
+        """Every term's value at ``v_np`` (no gradient)."""
         with torch.no_grad():
             return {k: float(t) for k, t in self.energies(torch.tensor(v_np, dtype=torch.float32)).items()}
 
@@ -456,7 +465,7 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions,
             check(v.detach().double().numpy())
     except _Stopped:
         return best_or(v0), it, True, reason[0]
-    return best_or(v0), it, True, "adam finished"
+    return v.detach().double().numpy(), it, True, "adam finished"
 
 
 def window_starts(free: np.ndarray, window: int, overlap: int) -> list[int]:
@@ -553,11 +562,6 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
             known[s + first:e] = True
         win.rebase()
         v0 = win.pack()
-        start_vals = win.values(v0)
-        for k, val in start_vals.items():
-            terms_start[k] = terms_start.get(k, 0.0) + val
-        info["fun_start"] = sum(start_vals.values())
-
         t0 = time.perf_counter()
 
         def stop(v: np.ndarray) -> str | None:
@@ -575,12 +579,18 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
             it, ok, msg = 0, False, str(err)
             warns.append(f"window {w_i} (frames {s}-{e - 1}): {err}; kept the best iterate")
         timings["lbfgs"] += time.perf_counter() - t0
-        end_vals = win.values(v)
-        f_end = sum(end_vals.values())
-        if win.best[1] is not None and win.best[0] < f_end - 1e-6 * abs(f_end):
-            warns.append(f"window {w_i}: the optimiser ended above its best iterate; kept the best")
-            v = win.best[1]
+        # the optimisers start with v0, so the first evaluation holds the starting values
+        start_vals = win.first_terms if win.first_terms is not None else win.values(v0)
+        if win.best[1] is not None:   # keep the best point evaluated (where the optimiser ends, normally)
+            f_end = win.seen.get(hash(v.tobytes()), math.inf)
+            if f_end > win.best[0] + 1e-6 * abs(win.best[0]) and not msg.startswith("term "):
+                warns.append(f"window {w_i}: the optimiser ended above its best iterate; kept the best")
+            v, end_vals = win.best[1], win.best_terms
+        else:
             end_vals = win.values(v)
+        for k, val in start_vals.items():
+            terms_start[k] = terms_start.get(k, 0.0) + val
+        info["fun_start"] = sum(start_vals.values())
         stopped = msg == "stopped by callback"
         timings["prior"] += win.prior_seconds
         nit += it
