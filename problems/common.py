@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from motionopt.features import (RootStart, contact_labels, decode_motion, encode, estimate_ground, to_file_motion,
+from motionopt.features import (RootStart, contact_labels, decode_motion, encode, to_file_motion,
                                 to_model_motion)
 from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
@@ -156,16 +156,16 @@ def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:
 
 
 def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray,
-               frames: slice | np.ndarray) -> Motion:
+               frames: slice | np.ndarray, slow: float = 1.0) -> Motion:
     """Foot-contact cleanup (``footik.clean_contacts``) on ``frames`` of a model motion,
     with the contacts the prior predicts for features ``x`` and where a foot is already
-    nearly still on the ground; other frames (``frames``: a slice or a mask) stay as they are."""
+    near the ground moving slower than ``slow`` m/s; other frames (``frames``: a slice or a mask) stay as they are."""
     from motionopt.footik import clean_contacts
 
     contacts = contact_probabilities(prior, x)
     cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
     contacts = np.maximum(contacts, contact_labels(model.positions(), cidx, model.fps, 0.0,
-                                                   prior.spec.contact_height, prior.spec.contact_speed))
+                                                   prior.spec.contact_height, slow))
     keep = np.ones(model.num_frames, bool)
     keep[frames] = False
     contacts[keep] = 0.0
@@ -188,3 +188,9 @@ def end_yaw(prep: Prepared, upto: int | None = None) -> float:
     """Heading (radians, unwrapped) of frame ``upto - 1`` (default the last) of the input."""
     s = prep.raw[:upto, 2].double().sum() if upto is None or upto > 0 else 0.0
     return float(prep.start.yaw + s)
+
+
+def features_of(motion: Motion, prior, ground: float) -> torch.Tensor:
+    """Normalised features (T, D) of a model motion, heights measured from ``ground``."""
+    raw, _ = encode(motion, prior.spec, ground=ground)
+    return prior.normalizer.normalize(raw).float()

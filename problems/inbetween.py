@@ -8,13 +8,13 @@ import numpy as np
 import torch
 
 from motionopt import rotations as R
-from motionopt.features import RootStart, decode_motion, encode
+from motionopt.features import RootStart, decode_motion
 from motionopt.motion import Motion
 from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import SolverOptions
 
-from .common import (TaskResult, TermSigmas, back_to_file, clamped_rollout, model_frames_in, plant_feet, prepare,
-                     root_features, run, splice, standard_terms)
+from .common import (TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of, model_frames_in, plant_feet,
+                     prepare, root_features, run, splice, standard_terms)
 
 
 def parse_ranges(text: str) -> list[tuple[int, int]]:
@@ -67,6 +67,7 @@ class Inbetween:
     sigmas: TermSigmas = field(default_factory=TermSigmas)
     options: SolverOptions = field(default_factory=SolverOptions)
     refine: bool = False
+    clean_feet: bool = False
 
     def __post_init__(self) -> None:
         self.keep = check_ranges(list(self.keep), self.motion.num_frames)
@@ -101,7 +102,8 @@ class Inbetween:
             terms += standard_terms(prep, prior, self.sigmas)
             result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None))
             x = result.x
-        model = plant_feet(model, prior, x, prep.planted_height, ~kept)
+        if self.clean_feet:
+            model = plant_feet(model, prior, x, prep.planted_height, ~kept)
         seconds = time.perf_counter() - t0
         synth = back_to_file(model, prep)
         keep_o = np.zeros(synth.num_frames, bool)
@@ -168,12 +170,6 @@ def _gaps(kept: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) of each run of frames that are not kept."""
     d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
-
-
-def features_of(motion: Motion, prior, ground: float) -> torch.Tensor:
-    """Normalised features (T, D) of a model motion, heights measured from ``ground``."""
-    raw, _ = encode(motion, prior.spec, ground=ground)
-    return prior.normalizer.normalize(raw).float()
 
 
 def complete(motion: Motion, prefix: int, n_frames: int, prior, **kwargs) -> Inbetween:

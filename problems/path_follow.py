@@ -16,8 +16,8 @@ from motionopt.motion import Motion
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.solver import SolverOptions
 
-from .common import (Prepared, TaskResult, TermSigmas, back_to_file, clamped_rollout, plant_feet, prepare,
-                     root_features, run, standard_terms)
+from .common import (Prepared, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of, plant_feet,
+                     prepare, root_features, run, standard_terms)
 
 
 def polyline_lengths(path: np.ndarray) -> np.ndarray:
@@ -140,7 +140,7 @@ class PathFollow:
         t0 = time.perf_counter()
         tgt, n_new, speed = self.targets(prep, fps)
         # a seed that ends off the path joins it over the first half second
-        off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[0] - tgt[1] if n_new > 1 else 0)
+        off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
         fade = np.clip(1 - np.arange(1, n_new + 1) / max(fps / 2, 1), 0, 1)[:, None]
         tgt = tgt + off * fade * fade * (3 - 2 * fade)
         n_seed = len(prep.x)
@@ -168,8 +168,9 @@ class PathFollow:
         new_root = model.root[n_seed:, [0, 2]]
         dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new_root), torch.from_numpy(self.path)).numpy())
         cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        final = features_of(model, prior, prep.start.ground)
         with torch.no_grad():
-            nll = prior.nll(x[n_seed:].float(), x[max(0, n_seed - prior.receptive_field):n_seed].float())
+            nll = prior.nll(final[n_seed:], final[max(0, n_seed - prior.receptive_field):n_seed])
         metrics = {
             "path_distance_cm_mean": float(dist.mean() * 100),
             "path_distance_cm_max": float(dist.max() * 100),
