@@ -1,31 +1,37 @@
 """Benchmark of the editing tasks (``problems``) on held-out clips, against the baselines
 an animator would use. Everything runs at the prior's 30 fps on the prior's joints (clips
 are resampled to it first, so that baselines and ours see the same frames), on the
-validation clips named in the checkpoint's metadata (no model was trained on them).
+validation clips named in the checkpoint's metadata (no model was trained on them);
+clips shorter than a section needs are left out of it.
 
 1. Path following: seed = a clip's first second, path = its root path over the next
    ``--seconds`` (timed by the clip); plus drawn paths (circle, S-curve, sharp turn, stop
-   and restart) from held-out walking seeds. Mean root-to-path distance (cm per frame),
-   foot skating (``metrics.foot_skating``) of ours and of the held-out mocap, output
-   frames per second.
+   and restart) from held-out walking seeds. The task clamps the root channels to the
+   path, so the distance is near zero by construction; what tells is foot skating
+   (``metrics.foot_skating``) of ours against the held-out mocap of the same segment
+   (drawn paths: the mean of the held-out segments), prior NLL per frame of ours and of
+   the mocap, and output frames per second (rollout and foot IK included).
 2. Denoising: joint positions moved by 1, 3 and 5 cm RMS, made in the motion's own
    degrees of freedom: every local rotation turned by an axis-angle from N(0, s^2 I), s
-   calibrated per clip for that RMS displacement (``bench/prior.py``'s noise). Baselines
-   on joint positions: 4th-order Butterworth (filtfilt) with the cutoff in 2-12 Hz that is
-   best per noise level on these very clips (an oracle choice), Savitzky-Golay with the
-   best window (5-31 frames) and order (2, 3). MPJPE to the clean clip, foot skating, jerk.
+   calibrated per clip for that RMS displacement (``bench/prior.py``'s noise; the root
+   path is left alone). Baselines on joint positions: 4th-order Butterworth (filtfilt)
+   with the cutoff in 2-12 Hz that is best per noise level on these very clips (an
+   oracle choice), Savitzky-Golay with the best window (5-31 frames) and order (2, 3).
+   Ours (default, no oracle): per-joint low-pass at the cutoff of least Stein risk for the
+   noise level estimated from the input; also with foot IK and with MAP refinement.
+   MPJPE to the clean clip, foot skating, jerk (the jitter measure).
 3. In-betweening (LAFAN1 protocol): 10 context frames, a gap of 5, 15 or 30 frames, 1
    target frame; L2P (metres, unnormalised), L2Q and NPSS (world quaternions) against
    SLERP of local rotations plus linear root interpolation.
-4. Prefix completion: 1 s continuation after 2 s of a clip: MPJPE to the real
+4. Prefix completion: 1 s continuation after 1 s of a clip: MPJPE to the real
    continuation against zero-velocity (last frame held) and constant-velocity (root
    velocity and per-joint angular velocity of the last frame kept) extrapolation; prior
    NLL per frame of the completion and of the real continuation.
 5. Spatial edits: hand and foot targets moved 10-20 cm at single frames and ranges:
    target error and the change of frames more than the falloff away from any target.
 
-Run ``python bench/tasks.py [--clips N] [--tasks path denoise ...]``; the printed report is
-written to bench/results/tasks.txt when every task runs.
+Run ``python bench/tasks.py [--prior CKPT] [--clips N] [--tasks path denoise ...]``; the
+printed report is written to bench/results/tasks.txt when every task runs.
 """
 from __future__ import annotations
 

@@ -169,7 +169,7 @@ def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray
     keep = np.ones(model.num_frames, bool)
     keep[frames] = False
     contacts[keep] = 0.0
-    cleaned = clean_contacts(model, list(prior.spec.contact_joints), contacts, planted_height)
+    cleaned = clean_contacts(model, list(prior.spec.contact_joints), contacts, planted_height, blend_frames=6)
     rot = np.where(keep[:, None, None], model.rotations, cleaned.rotations)
     return model.with_frames(rot, model.root.copy(), model.translations)
 
