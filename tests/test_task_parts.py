@@ -1,0 +1,110 @@
+"""The parts the editing tasks are built from, on a real clip: clamped rollouts, root
+features, noise estimation and per-joint filtering, limb IK, in-betweening metrics."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from motionopt import bvh
+from motionopt import rotations as R
+from motionopt.features import decode, encode, to_model_motion
+from motionopt.metrics import l2p, l2q, npss
+from problems.common import clamped_rollout, root_features
+from problems.denoise import choose_cutoff, estimate_noise, low_pass
+from problems.edit import reach
+
+from priorkit import single_thread, tiny_prior  # noqa: F401
+
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="module")
+def walk():
+    prior = tiny_prior()
+    clip = next(p for p in sorted(DATA.glob("cmu-*.bvh")))
+    return prior, to_model_motion(bvh.load(clip), prior.spec)
+
+
+def test_root_features_are_what_decoding_integrates(walk):
+    prior, m = walk
+    raw, start = encode(m, prior.spec)
+    yaw = start.yaw + np.cumsum(raw[:, 2].numpy())
+    f = root_features(m.root[:, [0, 2]], yaw)
+    assert np.allclose(f, raw[1:, :3].numpy(), atol=1e-6)
+
+
+def test_clamped_rollout_holds_the_clamped_channels_and_decodes_onto_the_path(walk):
+    prior, m = walk
+    raw, start = encode(m, prior.spec)
+    x = prior.normalizer.normalize(raw).float()
+    n = 12
+    pts = np.cumsum(np.full((n + 1, 2), 0.03), axis=0) + m.root[19, [0, 2]]
+    yaw = np.linspace(0.0, 0.5, n + 1)
+    clamp = torch.from_numpy(root_features(pts, yaw))
+    new = clamped_rollout(prior, x[:20], clamp, slice(0, 3), 0.5, torch.Generator().manual_seed(0))
+    back = prior.normalizer.denormalize(new.double())
+    assert torch.allclose(back[:, :3], clamp, atol=1e-5)
+    _, root = decode(back, prior.spec, type(start)(0.0, pts[0, 0], pts[0, 1], start.ground))
+    assert np.allclose(root[:, [0, 2]].numpy(), pts[1:], atol=1e-4)
+
+
+def noisy(m, s: float, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    q = torch.from_numpy(m.rotations)
+    turn = R.axis_angle_to_quat(torch.randn(q.shape[:-1] + (3,), generator=g, dtype=q.dtype) * s)
+    return m.with_frames(R.quat_multiply(q, turn).numpy(), m.root.copy(), m.translations)
+
+
+@pytest.mark.parametrize("s", [0.01, 0.04])
+def test_noise_level_is_recovered_from_the_clip_alone(walk, s):
+    _, m = walk
+    est, _ = estimate_noise(noisy(m, s))
+    assert abs(est - s) < 0.25 * s
+
+
+def test_per_joint_low_pass_brings_a_noisy_clip_nearer_the_clean_one(walk):
+    _, m = walk
+    nz = noisy(m, 0.03)
+    clean, before = m.positions(), nz.positions()
+    after = low_pass(nz, None, *estimate_noise(nz)).positions()
+    err = lambda p: np.linalg.norm(p - clean, axis=-1).mean()  # noqa: E731
+    assert err(after) < 0.7 * err(before)
+
+
+def test_risk_picks_a_lower_cutoff_for_more_noise():
+    t = np.arange(120) / 30.0
+    signal = np.sin(2 * np.pi * 1.5 * t)[:, None]
+    rng = np.random.default_rng(0)
+    grid = np.arange(1.0, 12.01, 0.5)
+    low = choose_cutoff(signal + 0.02 * rng.standard_normal(signal.shape), 0.02, 30.0, grid)
+    high = choose_cutoff(signal + 0.3 * rng.standard_normal(signal.shape), 0.3, 30.0, grid)
+    assert high < low
+
+
+def test_reach_meets_a_target_with_the_limb_above_the_joint(walk):
+    prior, m = walk
+    j = m.skeleton.index(prior.spec.joints[8])  # a hand or wrist: three joints below the spine
+    f = 10
+    target = m.positions()[f, j] + np.array([0.05, 0.1, 0.0])
+    turns = reach(m.skeleton, m.rotations[f], m.root[f], j, target)
+    q = R.quat_multiply(torch.from_numpy(m.rotations[f]), R.axis_angle_to_quat(torch.from_numpy(turns)))
+    moved = m.with_frames(np.repeat(q.numpy()[None], m.num_frames, 0), m.root.copy(), None).positions()[f]
+    assert np.linalg.norm(moved[j] - target) < 1e-3
+    untouched = [k for k in range(m.skeleton.num_joints) if not np.any(turns[k])]
+    assert 0 in untouched and np.count_nonzero(np.abs(turns).sum(1)) <= 3
+
+
+def test_inbetweening_metrics_are_zero_on_the_truth_and_grow_with_the_error():
+    g = torch.Generator().manual_seed(0)
+    pos = torch.randn(2, 15, 5, 3, generator=g)
+    q = R.quat_normalize(torch.randn(2, 15, 5, 4, generator=g))
+    assert float(l2p(pos, pos).max()) == 0.0
+    assert float(l2q(-q, q).max()) < 1e-6  # q and -q are the same rotation
+    assert float(l2p(pos + 0.1, pos).mean()) < float(l2p(pos + 0.2, pos).mean())
+    seq = torch.sin(torch.linspace(0, 6, 30))[None, :, None].expand(1, 30, 4)
+    assert float(npss(seq, seq)) < 1e-6
+    jitter = seq + 0.3 * torch.randn(1, 30, 4, generator=g)
+    assert float(npss(jitter, seq)) > 0.01
