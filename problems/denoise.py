@@ -39,8 +39,10 @@ def estimate_noise(motion: Motion) -> tuple[float, float]:
 
 
 def _smoother(n: int, cutoff_hz: float, fps: float) -> np.ndarray:
-    """The (n, n) matrix of a 4th-order zero-phase Butterworth low-pass (filtfilt)."""
-    b, a = butter(4, min(cutoff_hz / (fps / 2), 0.99))
+    """The (n, n) matrix of a zero-phase Butterworth low-pass (filtfilt) of order 2: its
+    gentler roll-off than order 4 suits motion spectra, which fade out gradually (lower
+    error on training clips at 1-5 cm of noise)."""
+    b, a = butter(2, min(cutoff_hz / (fps / 2), 0.99))
     return filtfilt(b, a, np.eye(n), axis=0)
 
 
@@ -58,7 +60,7 @@ def choose_cutoff(y: np.ndarray, sigma: float, fps: float, candidates: np.ndarra
 
 def low_pass(motion: Motion, cutoff_hz: float | None = None, angle_sigma: float = 0.01,
              root_sigma: float = 0.01) -> Motion:
-    """Zero-phase 4th-order Butterworth low-pass of rotations (aligned quaternions,
+    """Zero-phase Butterworth low-pass (``_smoother``) of rotations (aligned quaternions,
     renormalised) and root positions. With ``cutoff_hz`` None each joint (and the root)
     gets its own cutoff in 1-12 Hz, the one of least estimated risk for its noise level
     (``choose_cutoff``): fast limbs keep more bandwidth than a slow spine."""
@@ -73,7 +75,7 @@ def low_pass(motion: Motion, cutoff_hz: float | None = None, angle_sigma: float 
         fc = cutoff_hz or choose_cutoff(q[:, j, 1:], angle_sigma / 2, fps, grid)
         out_q[:, j] = _smoother(n, fc, fps) @ q[:, j]
     out_q /= np.linalg.norm(out_q, axis=-1, keepdims=True)
-    fc = cutoff_hz or choose_cutoff(motion.root, max(root_sigma, 1e-5), fps, grid)
+    fc = cutoff_hz or choose_cutoff(motion.root, max(root_sigma, 1e-6), fps, grid)
     return motion.with_frames(out_q, _smoother(n, fc, fps) @ motion.root, motion.translations)
 
 
@@ -122,7 +124,7 @@ class Denoise:
         est_angle, est_root = estimate_noise(prep.model) if n > 8 else (0.01, 0.01)
         sigma_angle = self.sigma_angle or max(est_angle, 1e-3)
         sigma_root = self.sigma_root or max(est_root, 1e-3)
-        start = prepare(low_pass(prep.model, self.cutoff_hz, sigma_angle, sigma_root), prior)
+        start = prepare(low_pass(prep.model, self.cutoff_hz, sigma_angle, est_root), prior)
         model, x, result = start.model, start.x, None
         if self.refine:
             fidelity = PoseFidelityTerm(prep.model.root, prep.model.rotations, sigma_root, sigma_angle,
