@@ -353,9 +353,9 @@ def main() -> None:
                   f"{torch.get_num_threads()})", ""]
         print("\n".join(block), flush=True)
         out += block
-    if not args.checkpoints:
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        RESULTS.write_text("\n".join(out) + "\n")
+        if not args.checkpoints:  # written after each checkpoint, so a long run leaves its figures as it goes
+            RESULTS.parent.mkdir(parents=True, exist_ok=True)
+            RESULTS.write_text("\n".join(out) + "\n")
 
 
 if __name__ == "__main__":
