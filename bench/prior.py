@@ -205,8 +205,9 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int) -> str:
     baseline = ConstantVelocityGaussian.fit([prior.normalizer.normalize(x).float() for x in train.train.values()],
                                             prior.spec.pose_dim)
     clips = held_out_clips(prior, folder)
-    lines = [f"== {path.name}: {meta.get('epochs_done')} epochs, {meta.get('training_minutes', 0):.0f} min of "
-             f"training, {len(train.train)} training clips ({train.num_train_frames} frames), "
+    lines = [f"== {path.name}: weights of epoch {meta.get('selected_epoch')} (best median validation NLL), "
+             f"after {meta.get('training_minutes', 0):.0f} min of training; "
+             f"{len(train.train)} training clips ({train.num_train_frames} frames), "
              f"{len(clips)} held out; data {folder} (loaded in {time.perf_counter() - t0:.0f} s)",
              f"   licence: {meta.get('licence')}", ""]
 

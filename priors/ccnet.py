@@ -2,8 +2,11 @@
 
 A 1x1 encoder, gated residual blocks of dilated causal convolutions with skip
 connections, and a decoder that outputs, for frame t, a diagonal Gaussian over the
-pose features of frame t (mean as a change from frame t-1, log-std clamped) and
-contact logits, from frames before t only. One teacher-forced pass scores a window.
+pose features of frame t (log-std clamped) and contact logits, from frames before t
+only. One teacher-forced pass scores a window. The mean of the joint and root-tilt
+rotations is predicted as a change from frame t-1; the root channels (ground velocity,
+yaw rate, height), which are rates or bounded already, are predicted directly: as
+changes their errors integrate twice and free-running rollouts speed up without bound.
 """
 from __future__ import annotations
 
@@ -33,11 +36,14 @@ class CCNetConfig:
     log_std_min: float = -5.0
     log_std_max: float = 1.0
     input_dropout: float = 0.1
+    #: Predict the root channels directly rather than as a change from the previous frame.
+    absolute_root: bool = True
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
         d = dict(d)
         d["dilations"] = tuple(d["dilations"])
+        d.setdefault("absolute_root", False)  # checkpoints from before the field predicted changes
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -97,6 +103,9 @@ class CCNetPrior(nn.Module):
         out = self.decoder(skip).transpose(1, 2)
         p = self.spec.pose_dim
         mean = history[..., :p] + out[..., :p]
+        if self.config.absolute_root:
+            r = self.spec.slices()["root_tilt"].start
+            mean = torch.cat((out[..., :r], mean[..., r:]), dim=-1)
         log_std = out[..., p:2 * p].clamp(self.config.log_std_min, self.config.log_std_max)
         return mean, log_std, out[..., 2 * p:]
 

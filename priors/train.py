@@ -6,7 +6,7 @@ import logging
 import math
 import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -87,6 +87,17 @@ def validation_nll(prior: CCNetPrior, windows: torch.Tensor, batch: int = 128) -
     return float(allv.mean()), float(allv.median())
 
 
+def resumed_architecture(state: dict, requested: CCNetConfig) -> CCNetConfig:
+    """The architecture a training state was started with; it wins over ``requested``, so
+    that a resumed run keeps the meaning of its weights (states from before the
+    architecture was stored hold the same settings with changes predicted for the root)."""
+    stored = (CCNetConfig.from_dict(state["model_config"]) if "model_config" in state
+              else replace(requested, absolute_root=False))
+    if stored != requested:
+        log.warning("resuming with the architecture the run was started with: %s", stored)
+    return stored
+
+
 def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = TrainConfig(),
                 metadata: dict | None = None, progress: bool = True, force: bool = False) -> CCNetPrior:
     """Train a CCNet prior on ``dataset`` and write the checkpoint ``out``.
@@ -102,14 +113,15 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     train_w = dataset.windows("train", config.window, config.stride)
     val_w = dataset.windows("val", config.window, config.window // 2) if dataset.val else None
     meta = provenance(dataset, config, metadata)
-    prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, config.model, meta)
+    state = torch.load(sp, map_location="cpu", weights_only=False) if sp.exists() else None
+    model = config.model if state is None else resumed_architecture(state, config.model)
+    prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, model, meta)
     opt = torch.optim.Adam(prior.parameters(), lr=config.lr)
     steps_per_epoch = math.ceil(len(train_w) / config.batch_size)
     total_steps = steps_per_epoch * config.epochs
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, total_steps, eta_min=config.lr_min)
     start_epoch, history, seconds = 0, [], 0.0
-    if sp.exists():
-        state = torch.load(sp, map_location="cpu", weights_only=False)
+    if state is not None:
         prior.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
@@ -160,9 +172,10 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
         if not medians or record["val_nll_median"] <= min(medians):
             prior.metadata["selected_epoch"] = epoch + 1
             save_prior(prior, out)
-        atomic_torch_save({"model": prior.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                           "generator": gen.get_state(), "torch_rng": torch.get_rng_state(), "epoch": epoch + 1,
-                           "history": history, "seconds": time.perf_counter() - t_start}, sp)
+        atomic_torch_save({"model": prior.state_dict(), "model_config": model.to_dict(), "optimizer": opt.state_dict(),
+                           "scheduler": sched.state_dict(), "generator": gen.get_state(),
+                           "torch_rng": torch.get_rng_state(), "epoch": epoch + 1, "history": history,
+                           "seconds": time.perf_counter() - t_start}, sp)
         if config.max_minutes and record["minutes"] >= config.max_minutes:
             log.warning("stopping after %d epochs: time budget of %.0f minutes reached", epoch + 1, config.max_minutes)
             break

@@ -138,6 +138,36 @@ def test_sampling_is_seeded_and_follows_the_predicted_mean(prior, x):
     assert two.shape == (2, 5, x.shape[-1]) and torch.allclose(two[0], two[1])
 
 
+@pytest.mark.parametrize("absolute_root", [True, False])
+def test_root_channels_are_predicted_directly_and_rotations_as_changes(x, absolute_root):
+    """An untrained prior outputs zeros: its mean is then 0 (the data mean) where it
+    predicts directly, and the previous frame where it predicts a change."""
+    from dataclasses import replace
+
+    fresh = fresh_prior()
+    untrained = type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton,
+                            replace(fresh.config, absolute_root=absolute_root)).eval()
+    mean, _, _ = untrained.gaussian(x[1:], context=x[:1])
+    r = fresh.spec.slices()["root_tilt"].start
+    assert torch.equal(mean[:, r:], x[:-1, r:fresh.spec.pose_dim])
+    assert torch.equal(mean[:, :r], torch.zeros_like(mean[:, :r]) if absolute_root else x[:-1, :r])
+
+
+def test_checkpoint_from_before_absolute_root_keeps_its_meaning(prior, x, tmp_path):
+    from dataclasses import replace
+
+    old = copy.deepcopy(prior)
+    old.config = replace(prior.config, absolute_root=False)
+    path = tmp_path / "old.pt"
+    save_prior(old, path)
+    data = read_checkpoint(path)
+    del data["config"]["absolute_root"]
+    torch.save(data, path)
+    loaded = load_prior(path)
+    assert loaded.config.absolute_root is False
+    assert torch.equal(loaded.nll(x), old.nll(x)) and not torch.equal(loaded.nll(x), prior.nll(x))
+
+
 def test_checkpoint_round_trip_gives_identical_nll(prior, x, tmp_path):
     path = tmp_path / "tiny.pt"
     save_prior(prior, path)
