@@ -31,7 +31,7 @@ clips shorter than a section needs are left out of it.
    target error and the change of frames more than the falloff away from any target.
 
 Run ``python bench/tasks.py [--prior CKPT] [--clips N] [--tasks path denoise ...]``; the
-printed report is written to bench/results/tasks.txt when every task runs.
+printed report is written to bench/results/tasks.txt (``--out``) when every task runs.
 """
 from __future__ import annotations
 
@@ -70,6 +70,10 @@ def held_out(prior, n: int) -> list[tuple[str, Motion]]:
     folder = data_folder(prior.metadata)
     return [(name, to_model_motion(bvh.load(folder / name), prior.spec))
             for name in prior.metadata["validation_clips"][:n]]
+
+
+def short(name: str) -> str:
+    return name.replace("dataset-1_", "").replace("_001", "").replace(".bvh", "")
 
 
 def contact_index(prior) -> list[int]:
@@ -130,7 +134,7 @@ def bench_path(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[s
         ref = skating(prior, seg)
         real_nll = continuation_nll(prior, m[:n_seed + n_new], n_seed)
         mt = r.metrics
-        rows.append([name.replace("dataset-1_", "").replace(".bvh", ""), mt["path_distance_cm_mean"],
+        rows.append([short(name), mt["path_distance_cm_mean"],
                      mt["path_distance_cm_max"], mt["foot_skating_cm_per_s"], ref,
                      mt["foot_skating_cm_per_s"] / ref, mt["prior_nll_per_frame"], real_nll,
                      mt["frames_per_second"]])
@@ -143,7 +147,7 @@ def bench_path(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[s
         for label, (path, times) in drawn_paths(m[:n_seed]).items():
             r = PathFollow(m[:n_seed], path, prior, times=times, speed=None if times is not None else 1.0).solve()
             mt = r.metrics
-            rows.append([f"{label} ({name.split('_')[2]} seed)", mt["path_distance_cm_mean"],
+            rows.append([f"{label} ({short(name)} seed)", mt["path_distance_cm_mean"],
                          mt["path_distance_cm_max"], mt["foot_skating_cm_per_s"], walk_ref,
                          mt["foot_skating_cm_per_s"] / walk_ref, mt["prior_nll_per_frame"], float(np.mean(nll_ref)),
                          mt["frames_per_second"]])
@@ -331,7 +335,7 @@ def bench_edit(prior, clips: list[tuple[str, Motion]]) -> list[str]:
         seg = m[:120]
         for label, targets in cases.items():
             r = SpatialEdit(seg, targets, prior).solve().metrics
-            rows.append([name.replace("dataset-1_", "").replace(".bvh", ""), label, r["target_error_cm_max"],
+            rows.append([short(name), label, r["target_error_cm_max"],
                          r["untouched_frames_change_cm_max"], r["edited_frames_change_cm_mean"],
                          f"{r['frames_per_second']:.0f}"])
     lines = ["5. Spatial edits (first 4 s of held-out clips; falloff 0.5 s; untouched = frames more than the falloff "
@@ -351,6 +355,7 @@ def main() -> None:
     ap.add_argument("--iters", type=int, default=30, help="L-BFGS iterations per window for denoising")
     ap.add_argument("--tasks", nargs="+", default=["path", "denoise", "inbetween", "complete", "edit"])
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", type=Path, default=RESULTS, help="where the report goes when every task runs")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     prior = load_prior(args.prior)
@@ -370,7 +375,7 @@ def main() -> None:
         print("\n".join(part) + "\n", flush=True)
         lines += part + [""]
     if set(args.tasks) == set(jobs):
-        RESULTS.write_text("\n".join(lines))
+        args.out.write_text("\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -128,10 +128,11 @@ def splice(synthesised: Motion, original: Motion, keep: np.ndarray) -> Motion:
 
 def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, channels: slice,
                     temperature: float, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Roll out ``len(clamp_raw)`` frames after ``context (C, D)`` (normalised), with the
-    feature ``channels`` of every new frame set to ``clamp_raw (N, K)`` (unnormalised)
-    before it becomes history: the prior synthesises the rest of each frame knowing the
-    clamped channels of the frames before it (e.g. the pose for a given root path)."""
+    """Roll out ``len(clamp_raw)`` frames (..., N, D) after ``context (..., C, D)``
+    (normalised; leading dims are independent rollouts), with the feature ``channels`` of
+    every new frame set to ``clamp_raw (N, K)`` (unnormalised) before it becomes history:
+    the prior synthesises the rest of each frame knowing the clamped channels of the
+    frames before it (e.g. the pose for a given root path)."""
     norm = prior.normalizer
     mean, std = norm.mean[channels].float(), norm.std[channels].float()
     clamp = (clamp_raw.float() - mean) / std
@@ -139,11 +140,11 @@ def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, chann
     rf = prior.receptive_field
     out = []
     for t in range(len(clamp)):
-        nxt = prior.sample(frames[-rf:], 1, generator=generator, temperature=temperature)[0]
-        nxt[channels] = clamp[t]
+        nxt = prior.sample(frames[..., -rf:, :], 1, generator=generator, temperature=temperature)[..., 0, :]
+        nxt[..., channels] = clamp[t]
         out.append(nxt)
-        frames = torch.cat((frames[-rf + 1:], nxt[None]))
-    return torch.stack(out)
+        frames = torch.cat((frames[..., -rf + 1:, :], nxt[..., None, :]), dim=-2)
+    return torch.stack(out, dim=-2)
 
 
 def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:

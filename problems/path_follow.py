@@ -17,6 +17,7 @@ from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.solver import SolverOptions
 
 from .common import (Prepared, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of, plant_feet,
+                    
                      prepare, root_features, run, standard_terms)
 
 
@@ -50,6 +51,13 @@ class PathFollow:
     Timing: ``times`` (N,) seconds after the seed's end at each path point, or a constant
     ``speed`` (m/s; default the seed's recent speed, at least 1 m/s). ``seconds`` of new
     motion (default: until the path's end at that timing).
+
+    The root channels of every new frame are clamped to the path (``root_channels``:
+    on the path at its timing, facing along it as the seed faced its way of travel) and
+    the prior rolls out the rest of each frame (``clamped_rollout``, temperature
+    ``options.temperature``); of ``candidates`` rollouts the one whose feet slide least
+    is kept (contacts planted by leg IK in each, sliding measured as ``metrics.foot_skating``). With ``refine`` the MAP solver (path,
+    contact and prior terms) then polishes it.
     """
 
     seed: Motion
@@ -63,6 +71,7 @@ class PathFollow:
     sigmas: TermSigmas = field(default_factory=TermSigmas)
     options: SolverOptions = field(default_factory=SolverOptions)
     refine: bool = False
+    candidates: int = 8
 
     def __post_init__(self) -> None:
         self.path = np.asarray(self.path, dtype=np.float64)
@@ -133,6 +142,10 @@ class PathFollow:
         yaw = yaw_end + ramp * (yaw - yaw_end)
         return root_features(pts, yaw)
 
+    def decode(self, x: torch.Tensor, prep: Prepared) -> Motion:
+        raw = self.prior.normalizer.denormalize(x.double())
+        return decode_motion(raw, self.prior.spec, prep.model.skeleton, prep.start, like=prep.original)
+
     def solve(self) -> TaskResult:
         prior = self.prior
         prep = prepare(self.seed, prior)
@@ -145,11 +158,21 @@ class PathFollow:
         tgt = tgt + off * fade * fade * (3 - 2 * fade)
         n_seed = len(prep.x)
         n = n_seed + n_new
+        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
         gen = torch.Generator().manual_seed(self.options.seed)
-        new = clamped_rollout(prior, prep.x[-prior.receptive_field:], torch.from_numpy(self.root_channels(prep, tgt, fps)),
-                              slice(0, 3), self.options.temperature, gen)
-        x = torch.cat((prep.x, new))
+        ctx = prep.x[-prior.receptive_field:].expand(self.candidates, -1, -1)
+        new = clamped_rollout(prior, ctx, torch.from_numpy(self.root_channels(prep, tgt, fps)), slice(0, 3),
+                              self.options.temperature, gen)
+        xs = torch.cat((prep.x.expand(self.candidates, -1, -1), new), dim=1)
         result = None
+        # of the candidate rollouts, with their feet planted, the one whose feet slide least
+        best = None
+        for x in xs:
+            model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
+            slide = float(foot_skating(torch.from_numpy(model.positions()[n_seed - 1:]), fps, cidx))
+            if best is None or slide < best[0]:
+                best = (slide, x, model)
+        _, x, model = best
         if self.refine:
             free = np.zeros(n, bool)
             free[n_seed:] = True
@@ -158,16 +181,13 @@ class PathFollow:
             terms = [PathTerm(self.path, self.sigma_path, mask=free, name="path"),
                      PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=free, name="path_timing")]
             terms += standard_terms(prep, prior, self.sigmas)
-            result, model = run(prior, prep, x, free, terms, replace(self.options, pso=None))
+            result, _ = run(prior, prep, x, free, terms, replace(self.options, pso=None))
             x = result.x
-        raw = prior.normalizer.denormalize(x.double())
-        model = decode_motion(raw, prior.spec, prep.model.skeleton, prep.start, like=prep.original)
-        model = plant_feet(model, prior, x, prep.planted_height, slice(n_seed, n))
+            model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         seconds = time.perf_counter() - t0
         motion = back_to_file(model, prep)
         new_root = model.root[n_seed:, [0, 2]]
         dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new_root), torch.from_numpy(self.path)).numpy())
-        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
         final = features_of(model, prior, prep.start.ground)
         with torch.no_grad():
             nll = prior.nll(final[n_seed:], final[max(0, n_seed - prior.receptive_field):n_seed])
