@@ -361,8 +361,9 @@ def main() -> None:
     prior = load_prior(args.prior)
     clips = held_out(prior, args.clips)
     small = [c for c in clips if c[1].num_frames >= 4 * prior.spec.fps][:args.small]
-    lines = [f"Tasks on held-out clips of {args.prior} ({prior.metadata.get('epochs')} epochs; torch threads "
-             f"{args.threads})", ""]
+    name = args.prior.relative_to(ROOT) if args.prior.is_relative_to(ROOT) else args.prior
+    lines = [f"Tasks on held-out clips of {name} (weights of epoch {prior.metadata.get('selected_epoch')} of "
+             f"{prior.metadata.get('epochs_done')}; torch threads {args.threads}; 2 shared CPU cores)", ""]
     jobs = {"path": lambda: bench_path(prior, clips, args.seconds),
             "denoise": lambda: bench_denoise(prior, small, 4.0, args.iters),
             "inbetween": lambda: bench_inbetween(prior, clips, 5),
