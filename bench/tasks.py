@@ -152,7 +152,7 @@ def bench_path(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[s
                          mt["foot_skating_cm_per_s"] / walk_ref, mt["prior_nll_per_frame"], float(np.mean(nll_ref)),
                          mt["frames_per_second"]])
     held = rows[:len(ref_sk)]
-    lines = [f"1. Path following ({prior.metadata.get('data', '')} locomotion prior; seed = first second; held-out "
+    lines = [f"1. Path following (prior trained on {prior.metadata.get('data', '')}; seed = first second; held-out "
              f"paths: the clip's root path over the next {seconds:g} s, timed by the clip; drawn paths at 1 m/s, "
              "mocap reference for them = mean of the held-out segments)"]
     lines += table(["path", "dist cm mean", "dist cm max", "skate cm/s", "mocap cm/s", "ratio", "NLL/frame",
