@@ -123,6 +123,10 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
     s.add_argument("--prior", default=None, metavar="CKPT",
                    help="prior checkpoint (default: the shipped one matching the input's skeleton)")
     s.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    s.add_argument("--refine", action="store_true",
+                   help="polish the result with the MAP solver (prior, task and contact terms; windows of "
+                   "34 frames, L-BFGS); off by default because with the shipped priors it does not improve "
+                   "the benchmark figures (bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
@@ -421,7 +425,7 @@ def cmd_path_follow(args: argparse.Namespace) -> int:
     prior, prior_path = load_ar_prior(seed, args)
     progress = WindowProgress(args)
     task = PathFollow(seed, points, prior, times=times, speed=args.speed, seconds=args.seconds,
-                      options=solver_options(args, PathFollow, progress))
+                      options=solver_options(args, PathFollow, progress), refine=args.refine)
     result = solve(args, task.solve, progress)
     return finish(args, outs, seed, result, prior_path, started, lambda out: plot.plot_root_paths(
         {"output": result.motion, "seed": seed}, out, target=points, title="Root path and target path",
@@ -445,7 +449,7 @@ def cmd_denoise(args: argparse.Namespace) -> int:
 
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
-        task = Denoise(motion, prior, options=solver_options(args, Denoise, progress))
+        task = Denoise(motion, prior, options=solver_options(args, Denoise, progress), refine=args.refine)
         result = solve(args, task.solve, progress)
     foot = prior.spec.contact_joints[0]
     return finish(args, outs, motion, result, prior_path, started, lambda out: plot.plot_joint_trajectories(
@@ -475,7 +479,7 @@ def cmd_inbetween(args: argparse.Namespace) -> int:
 
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
-        task = Inbetween(motion, keep, prior, options=solver_options(args, Inbetween, progress))
+        task = Inbetween(motion, keep, prior, options=solver_options(args, Inbetween, progress), refine=args.refine)
         result = solve(args, task.solve, progress)
     return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
 
@@ -496,7 +500,7 @@ def cmd_complete(args: argparse.Namespace) -> int:
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
         task = complete(motion, args.prefix, args.frames, prior,
-                        options=solver_options(args, Inbetween, progress))
+                        options=solver_options(args, Inbetween, progress), refine=args.refine)
         result = solve(args, task.solve, progress)
     return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
 
@@ -513,6 +517,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
     motion = load_input(args)
     prior, prior_path = load_ar_prior(motion, args)
     progress = WindowProgress(args)
-    task = SpatialEdit(motion, targets, prior, options=solver_options(args, SpatialEdit, progress))
+    task = SpatialEdit(motion, targets, prior, options=solver_options(args, SpatialEdit, progress),
+                       refine=args.refine)
     result = solve(args, task.solve, progress)
     return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
