@@ -8,6 +8,7 @@ are negative log-likelihoods in nats: a Gaussian residual r with sigma s costs
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -325,6 +326,12 @@ class MAPObjective:
     ``prior_min_log_std`` floors the prior's predictive log-std (normalised units): the
     trained prior is very confident about the next frame, which makes the energy too
     stiff for task terms to move it; a floor of -2.5 keeps it natural but pliable.
+    ``prior_min_std_raw`` also floors the std of the rotation features in their own
+    units (6D entries, about radians): entries that barely vary in the training data (a
+    knee's off-axis components) have normaliser stds of 1e-3, where the normalised floor
+    alone makes the prior a thousand times stiffer than elsewhere, and a few centimetres
+    of capture noise cost it 1e5 nats per frame; the solver then trades any amount of
+    fidelity for them. 0.01 (about half a degree) keeps those entries tight but finite.
     """
 
     prior: object
@@ -333,12 +340,23 @@ class MAPObjective:
     prior_weight: float = 1.0
     noise_sigma: float | None = None
     prior_min_log_std: float | None = -2.5
+    prior_min_std_raw: float | None = 0.01
 
     def __post_init__(self) -> None:
         self.spec: FeatureSpec = self.prior.spec
         self.prior_term = PriorTerm(self.prior_weight)
         self.noise_term = NoisePrior(self.noise_sigma) if self.noise_sigma else None
         self._offsets = torch.as_tensor(self.skeleton.offsets, dtype=torch.float32)
+        self._floor = self._log_std_floor()
+
+    def _log_std_floor(self) -> float | Tensor | None:
+        """The predictive log-std floor per pose dimension (normalised units), or one number."""
+        if not self.prior_min_std_raw:
+            return self.prior_min_log_std
+        std = self.prior.normalizer.std[:self.spec.pose_dim].double()
+        floor = torch.full_like(std, -math.inf if self.prior_min_log_std is None else self.prior_min_log_std)
+        floor[4:] = torch.maximum(floor[4:], torch.log(self.prior_min_std_raw / std[4:]))
+        return floor.float()
 
     def all_terms(self) -> list[Term]:
         return [self.prior_term] + ([self.noise_term] if self.noise_term else []) + list(self.terms)
@@ -353,7 +371,8 @@ class MAPObjective:
         solver fixes them so that the contact term does not jump between iterates.
         """
         norm = self.prior.normalizer
-        nll, predicted = self.prior.nll_and_contacts(x, context, noise, self.prior_min_log_std)
+        floor = self._floor.to(x.dtype) if isinstance(self._floor, Tensor) else self._floor
+        nll, predicted = self.prior.nll_and_contacts(x, context, noise, floor)
         if context.shape[-2] == 0:
             # the sequence's first frame has no history: the prior has nothing to say about it
             nll = torch.cat((torch.zeros_like(nll[..., :1]), nll[..., 1:]), dim=-1)

@@ -10,7 +10,7 @@ import torch
 
 from motionopt import bvh
 from motionopt import rotations as R
-from motionopt.features import advance, decode, decode_positions, encode, to_model_motion
+from motionopt.features import RootStart, advance, decode, decode_positions, encode, to_model_motion
 from motionopt.kinematics import fk_matrices
 from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
                                  PoseFidelityTerm, SmoothnessTerm, WindowState, keyframe_term,
@@ -175,3 +175,25 @@ def test_fidelity_needs_a_target():
 def test_path_needs_two_points():
     with pytest.raises(ValueError, match="at least 2 points"):
         PathTerm(np.zeros((1, 2)))
+
+
+def test_raw_floor_bounds_the_prior_on_near_constant_features():
+    """Rotation noise on entries that barely vary in the data costs the prior far less with
+    the floor in the features' own units, and still far more than clean motion."""
+    prior = tiny_prior()
+    x = features(cmu_clips()[0])[:40]
+    std = prior.normalizer.std[:prior.spec.pose_dim]
+    noisy = x.clone()
+    gen = torch.Generator().manual_seed(0)
+    noisy[:, 4:prior.spec.pose_dim] += 0.02 * torch.randn(40, prior.spec.pose_dim - 4, generator=gen) / std[4:].float()
+    nll = {}
+    for raw in (None, 0.01):
+        obj = MAPObjective(prior, prior.skeleton, [], prior_min_std_raw=raw)
+        for name, seq in (("clean", x), ("noisy", noisy)):
+            st = obj.window_state(seq[10:], np.arange(10, 40), seq[:10], torch.zeros(0, x.shape[1]), RootStart())
+            nll[name, raw] = float(st.prior_nll.sum())
+    assert nll["noisy", 0.01] - nll["clean", 0.01] < 0.1 * (nll["noisy", None] - nll["clean", None])
+    assert nll["noisy", 0.01] - nll["clean", 0.01] > 30 * 20     # 20 nats per frame at least
+    floor = MAPObjective(prior, prior.skeleton, [])._log_std_floor()
+    torch.testing.assert_close(floor[4:], torch.log(0.01 / std[4:]).clamp_min(-2.5).float())
+    assert torch.equal(floor[:4], torch.full((4,), -2.5))
