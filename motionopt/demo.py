@@ -72,14 +72,13 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
              progress: Callable[[str], None] = lambda s: None) -> DemoSummary:
     """Run the three demo tasks and write everything into ``out_dir``.
 
-    ``fast`` shrinks iteration budgets (for tests). Refuses to write over files that
+    ``fast`` walks a shorter path (for tests). Refuses to write over files that
     exist unless ``force``.
     """
     from priors.checkpoint import CHECKPOINT_DIR, load_prior
     from problems.denoise import Denoise
     from problems.inbetween import Inbetween
     from problems.path_follow import PathFollow
-    from motionopt.solver import PSOOptions, SolverOptions
 
     out = Path(out_dir)
     names = ["path-follow.bvh", "path.csv", "path-follow.png", "path-follow.json", "noisy.bvh", "denoised.bvh",
@@ -90,7 +89,6 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
         raise FileExistsError(f"{out} already holds demo files ({', '.join(clash[:3])}...); "
                               "pass --force to overwrite them or choose another --out-dir")
     out.mkdir(parents=True, exist_ok=True)
-    iters = 3 if fast else 25
     summary = DemoSummary(out)
 
     # 1. Path following: continue a walk along a drawn curve (Bandai locomotion prior).
@@ -102,8 +100,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     hips = seed.positions()[:, 1]
     path = drawn_curve(hips[-1, [0, 2]], hips[-1, [0, 2]] - hips[-8, [0, 2]], length=3.0 if fast else 4.5)
     np.savetxt(out / "path.csv", path, delimiter=",", header="x,z", comments="", fmt="%.4f")
-    pso = None if fast else PSOOptions(particles=8, iterations=3)
-    task = PathFollow(seed, path, walk_prior, options=SolverOptions(max_iter=iters, pso=pso))
+    task = PathFollow(seed, path, walk_prior)
     res = task.solve()
     bvh.save(res.motion, out / "path-follow.bvh", force=True)
     plot.plot_root_paths({"output": res.motion, "seed": seed}, out / "path-follow.png", target=path,
@@ -122,7 +119,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     clean = clip[:240].resample(30.0)
     noisy = noisy_copy(clean, 0.04, seed=0)
     cmu_prior = load_prior(CHECKPOINT_DIR / "cmu-ccnet.pt")
-    res = Denoise(noisy, cmu_prior, options=SolverOptions(max_iter=iters, pso=None)).solve()
+    res = Denoise(noisy, cmu_prior).solve()
     bvh.save(noisy, out / "noisy.bvh", force=True)
     bvh.save(res.motion, out / "denoised.bvh", force=True)
     plot.plot_joint_trajectories({"noisy": noisy, "denoised": res.motion, "clean": clean}, "lHand",
@@ -146,7 +143,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     progress("in-betweening: filling a gap between kept frames")
     n = clip.num_frames
     keep = [(0, 180), (240, n)]
-    res = Inbetween(clip, keep, cmu_prior, options=SolverOptions(max_iter=iters, pso=pso)).solve()
+    res = Inbetween(clip, keep, cmu_prior).solve()
     bvh.save(res.motion, out / "inbetween.bvh", force=True)
     plot.plot_filmstrip({"input": clip[150:270], "in-between": res.motion[150:270]}, out / "inbetween.png",
                         frames=6, first_frame=150, title="In-betweening: frames 180-239 synthesised", force=True)

@@ -25,7 +25,7 @@ def register(sub) -> None:
                        "offline; writes BVH files, pictures and JSON reports into --out-dir.")
     p.add_argument("--out-dir", default="motionopt-demo", help="folder for the results (default ./motionopt-demo)")
     p.add_argument("--force", action="store_true", help="overwrite results of an earlier demo run")
-    p.add_argument("--fast", action="store_true", help="tiny iteration budgets (a smoke test, not pretty)")
+    p.add_argument("--fast", action="store_true", help="a shorter walk (a quick smoke test)")
     add_common(p)
     p.set_defaults(func=cmd_demo)
 

@@ -134,8 +134,8 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
     s.add_argument("--optimizer", default=None, metavar="NAME",
                    help=f"local optimiser: {', '.join(OPTIMIZERS)} (default {SolverOptions.method}); scipy is "
                    "L-BFGS-B, nlopt LD_LBFGS, torch torch.optim.LBFGS, adam a first-order baseline")
-    swarm = ("it steers the synthesised frames; on by default" if new_frames else
-             "it steers synthesised frames only, so with --method ar it changes nothing here; off by default")
+    swarm = ("it steers the synthesised frames of --refine; off by default, --pso-particles turns it on"
+             if new_frames else "it steers synthesised frames only, so with --method ar it changes nothing here")
     s.add_argument("--no-pso", action="store_true", help=f"no particle swarm before the local optimiser ({swarm})")
     s.add_argument("--pso-particles", type=_positive(int), default=None, metavar="N",
                    help=f"particles of the swarm (default {PSOOptions.particles})")
