@@ -6,7 +6,7 @@ metadata, loaded from the data folder named there:
 1. Likelihood: mean per-frame NLL (nats, pose dimensions of the normalised features,
    every frame from the third on) of the prior, and of a constant-velocity Gaussian
    baseline: a diagonal Gaussian on x_t - (2 x_{t-1} - x_{t-2}) fitted on the same
-   training clips in the same feature space.
+   training clips in the same feature space, its std floored where the prior's is.
 2. Discrimination: mean per-frame NLL of the clean clips, of the same clips with
    joint-position noise of 1 cm RMS, and of the same clips played at double speed.
    The noise is made in the motion's own degrees of freedom: every local rotation
@@ -91,9 +91,12 @@ class ConstantVelocityGaussian:
     std: Tensor
 
     @classmethod
-    def fit(cls, clips: list[Tensor], pose_dim: int) -> "ConstantVelocityGaussian":
+    def fit(cls, clips: list[Tensor], pose_dim: int, min_std: float) -> "ConstantVelocityGaussian":
+        """Fit on training clips; ``min_std`` is the prior's own floor (exp of its least
+        log-std), so that dimensions that never move in training (CMU's collars) do not
+        hand the baseline a precision the prior is not allowed."""
         r = torch.cat([cls.residual(x, pose_dim) for x in clips])
-        return cls(r.mean(0), r.std(0).clamp_min(1e-6))
+        return cls(r.mean(0), r.std(0).clamp_min(min_std))
 
     @staticmethod
     def residual(x: Tensor, pose_dim: int) -> Tensor:
@@ -101,15 +104,24 @@ class ConstantVelocityGaussian:
         return p[2:] - 2 * p[1:-1] + p[:-2]
 
     def nll(self, x: Tensor) -> Tensor:
-        """Per-frame NLL of frames 2.. of ``x (T, D)``, shape (T-2,)."""
+        """NLL of frames 2.. of ``x (T, D)`` per pose dimension, shape (T-2, P)."""
         z = (self.residual(x, len(self.mean)) - self.mean) / self.std
-        return (0.5 * z * z + torch.log(self.std) + _HALF_LOG_2PI).sum(-1)
+        return 0.5 * z * z + torch.log(self.std) + _HALF_LOG_2PI
 
 
 @torch.no_grad()
 def prior_nll(prior, x: Tensor) -> Tensor:
-    """Per-frame NLL of frames 2.. of ``x`` (frame 0 is the context), to match the baseline."""
-    return prior.nll(x[1:], context=x[:1])[1:]
+    """NLL of frames 2.. of ``x`` per pose dimension, (T-2, P); frame 0 is the context,
+    frame 1 is left out to match the baseline."""
+    mean, log_std, _ = prior.gaussian(x[1:], context=x[:1])
+    z = (x[1:, :prior.spec.pose_dim] - mean) * torch.exp(-log_std)
+    return (0.5 * z * z + log_std + _HALF_LOG_2PI)[1:]
+
+
+def still_dims(prior) -> Tensor:
+    """Pose dimensions that never move in the training data (std at the normaliser's floor)."""
+    std = prior.normalizer.std[:prior.spec.pose_dim]
+    return std <= std.min() * 1.0001
 
 
 # ---- perturbations --------------------------------------------------------------------
@@ -203,7 +215,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int) -> str:
     t0 = time.perf_counter()
     train = build_dataset(folder, spec=prior.spec, val=[], include=meta["train_clips"])
     baseline = ConstantVelocityGaussian.fit([prior.normalizer.normalize(x).float() for x in train.train.values()],
-                                            prior.spec.pose_dim)
+                                            prior.spec.pose_dim, math.exp(prior.config.log_std_min))
     clips = held_out_clips(prior, folder)
     lines = [f"== {path.name}: weights of epoch {meta.get('selected_epoch')} (best median validation NLL), "
              f"after {meta.get('training_minutes', 0):.0f} min of training; "
@@ -212,7 +224,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int) -> str:
              f"   licence: {meta.get('licence')}", ""]
 
     # 1-2. likelihood and discrimination
-    rows = [["held-out clip", "frames", "prior NLL", "median", "CV-Gauss NLL", "noisy 1cm", "2x speed",
+    rows = [["held-out clip", "frames", "prior NLL", "median", "CV-Gauss NLL", "median", "noisy 1cm", "2x speed",
              "noise deg"]]
     tot = {k: [] for k in ("prior", "base", "noisy", "fast", "base_noisy", "base_fast")}
     for clip in clips:
@@ -222,17 +234,27 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int) -> str:
                "fast": prior_nll(prior, xf), "base_noisy": baseline.nll(xn), "base_fast": baseline.nll(xf)}
         for k, v in per.items():
             tot[k].append(v)
-        rows.append([clip.name, str(len(clip.x)), f"{per['prior'].mean():.1f}", f"{per['prior'].median():.1f}",
-                     f"{per['base'].mean():.1f}", f"{per['noisy'].mean():.1f}", f"{per['fast'].mean():.1f}",
-                     f"{math.degrees(s):.2f}"])
-    m = {k: float(torch.cat(v).mean()) for k, v in tot.items()}
-    rows.append(["all (frame-weighted)", str(sum(len(c.x) for c in clips)), f"{m['prior']:.1f}",
-                 f"{float(torch.cat(tot['prior']).median()):.1f}", f"{m['base']:.1f}", f"{m['noisy']:.1f}",
-                 f"{m['fast']:.1f}", ""])
+        f = {k: v.sum(-1) for k, v in per.items()}
+        rows.append([clip.name, str(len(clip.x)), f"{f['prior'].mean():.1f}", f"{f['prior'].median():.1f}",
+                     f"{f['base'].mean():.1f}", f"{f['base'].median():.1f}", f"{f['noisy'].mean():.1f}",
+                     f"{f['fast'].mean():.1f}", f"{math.degrees(s):.2f}"])
+    allf = {k: torch.cat(v).sum(-1) for k, v in tot.items()}
+    m = {k: float(v.mean()) for k, v in allf.items()}
+    med = {k: float(v.median()) for k, v in allf.items()}
+    rows.append(["all (frame-weighted)", str(sum(len(c.x) for c in clips)), f"{m['prior']:.1f}", f"{med['prior']:.1f}",
+                 f"{m['base']:.1f}", f"{med['base']:.1f}", f"{m['noisy']:.1f}", f"{m['fast']:.1f}", ""])
+    still = still_dims(prior)
+    moving = {k: torch.cat(tot[k])[:, ~still].sum(-1) for k in ("prior", "base")}
+    still_joints = sorted({prior.spec.joints[1 + (int(i) - 10) // 6] for i in torch.nonzero(still) if i >= 10})
     lines += ["NLL per frame (nats, lower is more likely); noise deg = axis-angle std per joint giving 1 cm RMS",
               table(rows), "",
-              f"prior vs constant-velocity baseline: {m['prior']:.1f} vs {m['base']:.1f} "
-              f"({m['base'] - m['prior']:+.1f} nats per frame in favour of the prior)",
+              f"prior vs constant-velocity baseline: mean {m['prior']:.1f} vs {m['base']:.1f} "
+              f"({m['base'] - m['prior']:+.1f} nats per frame in favour of the prior), median {med['prior']:.1f} vs "
+              f"{med['base']:.1f} ({med['base'] - med['prior']:+.1f})",
+              f"without the {int(still.sum())} dimensions that never move in training "
+              f"({', '.join(still_joints) or 'none'}): mean {float(moving['prior'].mean()):.1f} vs "
+              f"{float(moving['base'].mean()):.1f}, median {float(moving['prior'].median()):.1f} vs "
+              f"{float(moving['base'].median()):.1f}",
               f"discrimination margins (prior): noisy - clean = {m['noisy'] - m['prior']:+.1f}, "
               f"2x speed - clean = {m['fast'] - m['prior']:+.1f} nats per frame",
               f"discrimination margins (baseline): noisy - clean = {m['base_noisy'] - m['base']:+.1f}, "
