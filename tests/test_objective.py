@@ -191,7 +191,7 @@ def test_raw_floor_bounds_the_prior_on_near_constant_features():
         obj = MAPObjective(prior, prior.skeleton, [], prior_min_std_raw=raw)
         for name, seq in (("clean", x), ("noisy", noisy)):
             st = obj.window_state(seq[10:], np.arange(10, 40), seq[:10], torch.zeros(0, x.shape[1]), RootStart())
-            nll[name, raw] = float(st.prior_nll.sum())
+            nll[name, raw] = float(st.prior_nll.detach().sum())
     assert nll["noisy", 0.01] - nll["clean", 0.01] < 0.1 * (nll["noisy", None] - nll["clean", None])
     assert nll["noisy", 0.01] - nll["clean", 0.01] > 30 * 20     # 20 nats per frame at least
     floor = MAPObjective(prior, prior.skeleton, [])._log_std_floor()

@@ -296,7 +296,7 @@ def test_hard_joint_target_is_met_through_nlopt():
 
 # ---- memory ---------------------------------------------------------------------------
 MEMORY_RUN = textwrap.dedent("""
-    import json, resource, sys
+    import json, re, sys
     import numpy as np, torch
     sys.path.insert(0, {tests!r})
     torch.set_num_threads(1)
@@ -308,9 +308,12 @@ MEMORY_RUN = textwrap.dedent("""
     objective, problem, model = denoise(prior, cmu_clips()[0])
     reps = -(-n // len(problem.x0))
     x = problem.x0.repeat(reps, 1)[:n]          # features are per-frame deltas: tiling is a valid motion
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    def vm(key):
+        return int(re.search(key + r":\s+(\d+)", open("/proc/self/status").read()).group(1))
+    open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident size (Linux)
+    before = vm("VmRSS")
     res = solve(objective, Problem(x, np.ones(n, bool), problem.start), SolverOptions(max_iter=1, pso=None))
-    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    after = vm("VmHWM")
     print(json.dumps({{"before_kb": before, "after_kb": after, "windows": len(res.windows)}}))
 """)
 
@@ -322,7 +325,8 @@ def peak_rss_kb(n: int) -> dict:
 
 
 def growth_kb(short: int, long: int) -> tuple[int, dict, dict]:
-    """Extra peak memory (kB) that the solve of ``long`` frames takes over that of ``short``."""
+    """Extra memory (kB, peak during the solve over resident before it) that the solve of
+    ``long`` frames takes over that of ``short``."""
     a, b = peak_rss_kb(short), peak_rss_kb(long)
     assert b["windows"] > 4 * a["windows"]
     return (b["after_kb"] - b["before_kb"]) - (a["after_kb"] - a["before_kb"]), a, b
