@@ -316,7 +316,7 @@ x = x0.repeat(reps, 1)[:n]   # per-frame deltas: a tiled clip is a valid motion
 fid = case.objective.terms[0]
 fid.root, fid.rotations = np.tile(fid.root, (reps, 1))[:n], np.tile(fid.rotations, (reps, 1, 1))[:n]
 def vm(key):
-    return int(re.search(key + r":\s+(\d+)", open("/proc/self/status").read()).group(1))
+    return int(re.search(key + r":\\s+(\\d+)", open("/proc/self/status").read()).group(1))
 open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident size (Linux)
 before = vm("VmRSS")
 res = solve(case.objective, Problem(x, np.ones(n, bool), case.problem.start), SolverOptions(max_iter=1, pso=None))

@@ -309,7 +309,7 @@ MEMORY_RUN = textwrap.dedent("""
     reps = -(-n // len(problem.x0))
     x = problem.x0.repeat(reps, 1)[:n]          # features are per-frame deltas: tiling is a valid motion
     def vm(key):
-        return int(re.search(key + r":\s+(\d+)", open("/proc/self/status").read()).group(1))
+        return int(re.search(key + r":\\s+(\\d+)", open("/proc/self/status").read()).group(1))
     open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident size (Linux)
     before = vm("VmRSS")
     res = solve(objective, Problem(x, np.ones(n, bool), problem.start), SolverOptions(max_iter=1, pso=None))
