@@ -15,7 +15,7 @@ so that only the solver varies:
   root and rotations (3 cm, 0.08 rad), contacts. Task error: MPJPE (cm) to the clean clip.
 
 Sections:
-1. Ablation: PSO+L-BFGS (defaults) against L-BFGS alone (defaults, then with the same
+1. Ablation: PSO+L-BFGS (``PSOOptions()``) against L-BFGS alone (defaults, then with the same
    time per window as PSO+L-BFGS) and Adam with that same time per window: final
    objective (nats, summed over windows) and task error. Denoising has no new frames,
    so the particle swarm has nothing to steer there (it is off by default).
@@ -59,7 +59,7 @@ from motionopt.features import decode_positions, encode, to_model_motion  # noqa
 from motionopt.metrics import foot_skating  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
 from motionopt.objective import ContactTerm, MAPObjective, PathTerm, PoseFidelityTerm, nearest_on_polyline_sq  # noqa: E402
-from motionopt.solver import MAPResult, Problem, SolverOptions, solve  # noqa: E402
+from motionopt.solver import MAPResult, Problem, PSOOptions, SolverOptions, solve  # noqa: E402
 from priors.checkpoint import CHECKPOINT_DIR, load_prior  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "solver.txt"
@@ -173,7 +173,7 @@ def ablation(seconds: float) -> list[str]:
         for case in cases(task, seconds):
             runs: dict[str, MAPResult] = {}
             if task == "path":
-                runs["PSO+L-BFGS"] = solve(case.objective, case.problem, SolverOptions())
+                runs["PSO+L-BFGS"] = solve(case.objective, case.problem, SolverOptions(pso=PSOOptions()))
                 ref = runs["PSO+L-BFGS"]
             runs["L-BFGS"] = solve(case.objective, case.problem, SolverOptions(pso=None))
             if task == "denoise":
@@ -236,7 +236,8 @@ def overhead(seconds: float) -> list[str]:
     profiles = []
     for label, case, opts in (("path, L-BFGS", path_case(prior, name, model, seconds), SolverOptions(pso=None)),
                               ("denoise, L-BFGS", denoise_case(prior, name, model, seconds), SolverOptions(pso=None)),
-                              ("path, PSO+L-BFGS", path_case(prior, name, model, seconds), SolverOptions())):
+                              ("path, PSO+L-BFGS", path_case(prior, name, model, seconds),
+                               SolverOptions(pso=PSOOptions()))):
         solve(case.objective, case.problem, replace(opts, max_iter=2))  # warm-up (imports, allocations)
         res = solve(case.objective, case.problem, opts)
         lbfgs_fev = res.nfev - (opts.pso.particles * opts.pso.iterations * len(res.windows) if opts.pso else 0)
@@ -264,8 +265,8 @@ def overhead(seconds: float) -> list[str]:
 
 # ---- 3. throughput --------------------------------------------------------------------
 THROUGHPUT = {
-    "defaults (B=34, b=17, 40 it, PSO 12x4)": SolverOptions(),
-    "PSO off, 40 it": SolverOptions(pso=None),
+    "PSO 12x4, 40 it (B=34, b=17)": SolverOptions(pso=PSOOptions()),
+    "PSO off, 40 it (the defaults)": SolverOptions(pso=None),
     "PSO off, 30 it": SolverOptions(pso=None, max_iter=30),
     "PSO off, 20 it": SolverOptions(pso=None, max_iter=20),
     "PSO off, 20 it, b=8": SolverOptions(pso=None, max_iter=20, overlap=8),

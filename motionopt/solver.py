@@ -576,9 +576,12 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
         t0 = time.perf_counter()
 
         def stop(v: np.ndarray) -> str | None:
-            if opts.callback is not None and opts.callback(
-                    {"window": w_i, "frames": (int(s), int(e)), "x": v, "best": win.best[0]}):
-                return "stopped by callback"
+            if opts.callback is not None:
+                try:
+                    if opts.callback({"window": w_i, "frames": (int(s), int(e)), "x": v, "best": win.best[0]}):
+                        return "stopped by callback"
+                except StopSolve:
+                    return "stopped by callback"
             if opts.time_budget is not None and time.perf_counter() - t0 >= opts.time_budget:
                 return "time budget reached"
             return None

@@ -189,14 +189,16 @@ def test_same_seed_same_result_bit_for_bit(bandai_prior):
 
 
 # ---- stopping, non-finite terms, best iterates -----------------------------------------
-@pytest.mark.parametrize("stop_in_window", [0, 1])
-def test_callback_stops_the_run(stop_in_window):
+@pytest.mark.parametrize("stop_in_window,raise_it", [(0, False), (1, False), (1, True)])
+def test_callback_stops_the_run(stop_in_window, raise_it):
     prior = tiny_prior()
     objective, problem, _ = denoise(prior, cmu_clips()[0])
     seen: list[dict] = []
 
     def callback(info: dict) -> bool:
         seen.append(info)
+        if raise_it and info["window"] == stop_in_window:
+            raise S.StopSolve
         return info["window"] == stop_in_window
 
     res = solve(objective, problem, SolverOptions(max_iter=10, pso=None, callback=callback))
