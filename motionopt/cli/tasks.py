@@ -48,9 +48,9 @@ def register(sub) -> None:
 
     p = sub.add_parser(
         "denoise", help="clean captured motion: remove jitter, foot sliding and ground penetration",
-        description="Stay close to the input's root and joint angles while the prior makes the motion natural "
-        "and the feet it finds planted stay still on the ground. --plot draws a foot's trajectory before "
-        "and after.")
+        description="Estimate the capture noise in the clip and low-pass filter each joint at the cutoff of "
+        "least estimated risk for it. --refine then adds the MAP solve: fidelity to the input's root and joint "
+        "angles, the prior and contact terms. --plot draws a foot's trajectory before and after.")
     p.add_argument("input", metavar="INPUT.bvh", help="motion to clean")
     _add_task_options(p, latent=True, new_frames=False)
     p.set_defaults(func=cmd_denoise)
