@@ -265,9 +265,9 @@ def overhead(seconds: float) -> list[str]:
 
 # ---- 3. throughput --------------------------------------------------------------------
 THROUGHPUT = {
-    "PSO 12x4, 40 it (B=34, b=17)": SolverOptions(pso=PSOOptions()),
-    "PSO off, 40 it (the defaults)": SolverOptions(pso=None),
-    "PSO off, 30 it": SolverOptions(pso=None, max_iter=30),
+    "PSO 12x4, 30 it (B=34, b=17)": SolverOptions(pso=PSOOptions()),
+    "PSO off, 40 it": SolverOptions(pso=None, max_iter=40),
+    "PSO off, 30 it (the defaults)": SolverOptions(pso=None),
     "PSO off, 20 it": SolverOptions(pso=None, max_iter=20),
     "PSO off, 20 it, b=8": SolverOptions(pso=None, max_iter=20, overlap=8),
     "PSO off, 12 it, b=8": SolverOptions(pso=None, max_iter=12, overlap=8),

@@ -20,6 +20,10 @@ from .skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
+#: Smallest per-dimension std of a normaliser; a dimension at this floor never moves in
+#: training (CMU's collar and buttock joints, one axis of a hinge) and priors leave it out.
+STATIC_STD = 1e-3
+
 
 @dataclass(frozen=True)
 class Normalizer:
@@ -34,11 +38,15 @@ class Normalizer:
     def denormalize(self, x: Tensor) -> Tensor:
         return x * self.std.to(x) + self.mean.to(x)
 
+    def moving(self) -> Tensor:
+        """True for the dimensions that vary in the training data (std above the floor)."""
+        return self.std > STATIC_STD * (1 + 1e-4)
+
     @classmethod
-    def fit(cls, clips: list[Tensor], spec: FeatureSpec, min_std: float = 1e-3) -> "Normalizer":
+    def fit(cls, clips: list[Tensor], spec: FeatureSpec) -> "Normalizer":
         allx = torch.cat(clips)
         mean = allx.mean(0)
-        std = allx.std(0).clamp_min(min_std)
+        std = allx.std(0).clamp_min(STATIC_STD)
         c = spec.slices()["contacts"]
         mean[c], std[c] = 0.0, 1.0
         return cls(mean, std)
@@ -72,6 +80,26 @@ class MotionDataset:
         if not out:
             raise ValueError(f"no {split} clip is at least {length} frames long")
         return self.normalizer.normalize(torch.cat(out)).float()
+
+    def padded_windows(self, split: str, length: int, stride: int, min_length: int = 8) -> tuple[Tensor, Tensor]:
+        """Like ``windows``, plus every clip shorter than ``length`` (but at least
+        ``min_length`` frames) as one window padded with its last frame, so that short
+        clips (Bandai's dashes and backward walks) are trained on too. Returns the windows
+        (N, length, D) and a mask (N, length) that is False on padding."""
+        clips = self.train if split == "train" else self.val
+        xs, valid = [], []
+        for x in clips.values():
+            if len(x) >= length:
+                w = x.unfold(0, length, stride).permute(0, 2, 1)
+                xs.append(w)
+                valid.append(torch.ones(len(w), length, dtype=torch.bool))
+            elif len(x) >= min_length:
+                pad = x[-1:].expand(length - len(x), -1)
+                xs.append(torch.cat((x, pad))[None])
+                valid.append((torch.arange(length) < len(x))[None])
+        if not xs:
+            raise ValueError(f"no {split} clip is at least {min_length} frames long")
+        return self.normalizer.normalize(torch.cat(xs)).float(), torch.cat(valid)
 
 
 def find_bvh(folder: str | Path) -> list[Path]:

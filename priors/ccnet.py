@@ -7,6 +7,10 @@ only. One teacher-forced pass scores a window. The mean of the joint and root-ti
 rotations is predicted as a change from frame t-1; the root channels (ground velocity,
 yaw rate, height), which are rates or bounded already, are predicted directly: as
 changes their errors integrate twice and free-running rollouts speed up without bound.
+
+Dimensions that never move in the training data (``Normalizer.moving``) are held at
+their previous value and left out of the likelihood: a prior that has only seen a
+constant there would otherwise give any clip that moves them an unbounded cost.
 """
 from __future__ import annotations
 
@@ -83,6 +87,7 @@ class CCNetPrior(nn.Module):
                                      nn.Conv1d(config.skip_channels, 2 * spec.pose_dim + spec.num_contacts, 1))
         nn.init.zeros_(self.decoder[-1].weight)
         nn.init.zeros_(self.decoder[-1].bias)
+        self.register_buffer("moving", normalizer.moving()[:spec.pose_dim].float(), persistent=False)
 
     @property
     def receptive_field(self) -> int:
@@ -102,7 +107,7 @@ class CCNetPrior(nn.Module):
             skip = skip + s
         out = self.decoder(skip).transpose(1, 2)
         p = self.spec.pose_dim
-        mean = history[..., :p] + out[..., :p]
+        mean = history[..., :p] + out[..., :p] * self.moving
         if self.config.absolute_root:
             r = self.spec.slices()["root_tilt"].start
             mean = torch.cat((out[..., :r], mean[..., r:]), dim=-1)
@@ -141,8 +146,12 @@ class CCNetPrior(nn.Module):
         mean, log_std, logits = self.gaussian(x, context, noise)
         if min_log_std is not None:
             log_std = log_std.clamp_min(min_log_std)
-        z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std)
-        return (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1), torch.sigmoid(logits)
+        return self._gaussian_nll(x, mean, log_std), torch.sigmoid(logits)
+
+    def _gaussian_nll(self, x: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
+        """Per-frame NLL of the pose part of ``x`` over the moving dimensions."""
+        z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std) * self.moving  # zero before squaring
+        return (0.5 * z * z + (log_std + _HALF_LOG_2PI) * self.moving).sum(-1)
 
     def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
         return self.nll_and_contacts(x, context, noise)[0]
@@ -158,19 +167,21 @@ class CCNetPrior(nn.Module):
             noise = noise.reshape(-1, n_frames, self.spec.pose_dim)
         rf = self.receptive_field
         frames = flat
-        p = self.spec.pose_dim
         new = []
         for _ in range(n_frames):
             mean, log_std, logits = self._predict(frames[:, -rf:])
             eps = noise[:, len(new)] if noise is not None else torch.randn(
                 mean[:, -1].shape, generator=generator, dtype=mean.dtype, device=mean.device)
-            pose = mean[:, -1] + temperature * torch.exp(log_std[:, -1]) * eps
-            contacts = (logits[:, -1] > 0).to(pose)
-            nxt = self.project(torch.cat((pose, contacts), dim=-1))
+            nxt = self._draw(mean[:, -1], log_std[:, -1], logits[:, -1], temperature * eps)
             new.append(nxt)
             frames = torch.cat((frames[:, -rf + 1:], nxt[:, None]), dim=1)
         out = torch.stack(new, dim=1)
         return out.reshape(*lead, n_frames, self.spec.dim)
+
+    def _draw(self, mean: Tensor, log_std: Tensor, logits: Tensor, eps: Tensor) -> Tensor:
+        """A frame from the predicted Gaussian (standard noise ``eps``) and contacts."""
+        pose = mean + torch.exp(log_std) * eps * self.moving
+        return self.project(torch.cat((pose, (logits > 0).to(pose)), dim=-1))
 
     def project(self, x: Tensor) -> Tensor:
         """Normalised features with every 6D rotation made orthonormal (keeps rollouts on
@@ -186,22 +197,43 @@ class CCNetPrior(nn.Module):
         return self.normalizer.normalize(raw)
 
     # ---- training loss -----------------------------------------------------------------
-    def loss(self, x: Tensor, noise_std: float = 0.03, smooth_weight: float = 10.0,
-             contact_weight: float = 2.0) -> tuple[Tensor, dict[str, float]]:
-        """Training loss on windows ``x (B, T, D)``: Gaussian NLL per frame and dimension,
-        plus smoothness of the predicted means and contact cross-entropy. Noise
-        augmentation perturbs the history, not the targets."""
+    def loss(self, x: Tensor, valid: Tensor | None = None, noise_std: float = 0.03, smooth_weight: float = 10.0,
+             contact_weight: float = 2.0, passes: int = 1) -> tuple[Tensor, dict[str, float]]:
+        """Training loss on windows ``x (B, T, D)`` (frames where ``valid (B, T)`` is False
+        are padding): Gaussian NLL per frame and moving dimension, plus smoothness of the
+        predicted means and contact cross-entropy. Noise augmentation perturbs the
+        history, not the targets.
+
+        ``passes`` > 1 trains on the model's own predictions (parallel scheduled sampling):
+        pass k+1 predicts the same targets from a history made of frames drawn from pass
+        k's predictions (no gradient through the draw), so the model learns to recover
+        from its own errors, which teacher forcing alone never shows it and which make
+        free-running rollouts drift.
+        """
         p = self.spec.pose_dim
-        hist = x[:, :-1]
-        if noise_std > 0:
-            noise = torch.randn_like(hist) * noise_std
-            noise[..., p:] = 0
-            hist = hist + noise
-        mean, log_std, logits = self._predict(hist)
         target = x[:, 1:]
-        z = (target[..., :p] - mean) * torch.exp(-log_std)
-        nll = (0.5 * z * z + log_std + _HALF_LOG_2PI).sum(-1).mean()
-        smooth = (mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]).pow(2).sum(-1).mean()
-        contact = Fn.binary_cross_entropy_with_logits(logits, target[..., p:]) if self.spec.num_contacts else nll * 0
-        total = nll / p + smooth_weight * smooth / p + contact_weight * contact
-        return total, {"nll": float(nll.detach()), "smooth": float(smooth.detach()), "contact": float(contact.detach())}
+        w = (valid[:, 1:] if valid is not None else torch.ones(target.shape[:2], dtype=torch.bool)).to(x)
+        hist = x[:, :-1]
+        nlls = []
+        for k in range(passes):
+            noisy = hist
+            if noise_std > 0:
+                noise = torch.randn_like(hist) * noise_std
+                noise[..., p:] = 0
+                noisy = hist + noise
+            mean, log_std, logits = self._predict(noisy)
+            nlls.append((self._gaussian_nll(target, mean, log_std) * w).sum() / w.sum())
+            if k == 0:
+                acc = (mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]).pow(2).sum(-1)
+                smooth = (acc * w[:, 2:]).sum() / w[:, 2:].sum().clamp_min(1)
+                bce = Fn.binary_cross_entropy_with_logits(logits, target[..., p:], reduction="none").mean(-1)
+                contact = (bce * w).sum() / w.sum() if self.spec.num_contacts else smooth * 0
+            if k + 1 < passes:
+                with torch.no_grad():
+                    drawn = self._draw(mean, log_std, logits, torch.randn_like(mean))
+                    hist = torch.cat((x[:, :1], drawn[:, :-1]), dim=1)
+        nll = torch.stack(nlls).mean()
+        dims = self.moving.sum()
+        total = nll / dims + smooth_weight * smooth / dims + contact_weight * contact
+        return total, {"nll": float(nlls[0].detach()), "nll_own": float(nlls[-1].detach()),
+                       "smooth": float(smooth.detach()), "contact": float(contact.detach())}

@@ -51,9 +51,12 @@ def atomic_torch_save(obj: object, path: Path) -> None:
             os.unlink(tmp)
 
 
-def save_prior(prior, path: str | Path, extra: dict | None = None) -> None:
-    """Write a prior's weights (float32) and metadata."""
-    state = {k: v.detach().float().clone() for k, v in prior.state_dict().items()}
+def save_prior(prior, path: str | Path, extra: dict | None = None, dtype: torch.dtype = torch.float32) -> None:
+    """Write a prior's weights and metadata. ``dtype`` float16 halves the file (the latent
+    priors ship so: their outputs change by well under a millimetre); loading always
+    gives float32."""
+    state = {k: v.detach().to(dtype).clone() if v.is_floating_point() else v.clone()
+             for k, v in prior.state_dict().items()}
     atomic_torch_save({
         "kind": type(prior).__name__,
         "config": prior.config.to_dict(),

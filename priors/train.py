@@ -31,6 +31,10 @@ class TrainConfig:
     lr: float = 1e-3
     lr_min: float = 2e-5
     noise_std: float = 0.03
+    #: Passes per batch; passes after the first predict from the model's own draws.
+    passes: int = 2
+    #: Clips shorter than ``window`` but at least this long are trained on, padded.
+    min_clip_frames: int = 8
     smooth_weight: float = 10.0
     contact_weight: float = 2.0
     seed: int = 0
@@ -75,15 +79,19 @@ def provenance(dataset: MotionDataset, config, metadata: dict | None) -> dict:
 
 
 @torch.no_grad()
-def validation_nll(prior: CCNetPrior, windows: torch.Tensor, batch: int = 128) -> tuple[float, float]:
-    """Mean and median per-frame NLL (pose dimensions, nats) of validation windows, all
-    frames after the first. The median is what selects the shipped weights: a single
-    capture glitch in a held-out clip (CMU salsa/15 has one) dominates the mean."""
+def validation_nll(prior: CCNetPrior, windows: torch.Tensor, valid: torch.Tensor | None = None,
+                   batch: int = 128) -> tuple[float, float]:
+    """Mean and median per-frame NLL (moving pose dimensions, nats) of validation windows,
+    all frames after the first where ``valid`` (N, T) is True. The median is what selects
+    the shipped weights: a single capture glitch in a held-out clip (CMU salsa/15 has
+    one) dominates the mean."""
     prior.eval()
-    parts = [prior.nll(windows[i:i + batch, 1:], context=windows[i:i + batch, :1]).reshape(-1)
+    parts = [prior.nll(windows[i:i + batch, 1:], context=windows[i:i + batch, :1])
              for i in range(0, len(windows), batch)]
     prior.train()
     allv = torch.cat(parts)
+    if valid is not None:
+        allv = allv[valid[:, 1:]]
     return float(allv.mean()), float(allv.median())
 
 
@@ -110,8 +118,9 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     out = Path(out)
     sp = start_run(out, force, config.threads, config.seed)
     gen = torch.Generator().manual_seed(config.seed)
-    train_w = dataset.windows("train", config.window, config.stride)
-    val_w = dataset.windows("val", config.window, config.window // 2) if dataset.val else None
+    train_w, train_valid = dataset.padded_windows("train", config.window, config.stride, config.min_clip_frames)
+    val_w, val_valid = (dataset.padded_windows("val", config.window, config.window // 2, config.min_clip_frames)
+                        if dataset.val else (None, None))
     meta = provenance(dataset, config, metadata)
     state = torch.load(sp, map_location="cpu", weights_only=False) if sp.exists() else None
     model = config.model if state is None else resumed_architecture(state, config.model)
@@ -136,10 +145,11 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
         order = torch.randperm(len(train_w), generator=gen)
         bar = tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress,
                    leave=False)
-        sums = {"loss": 0.0, "nll": 0.0}
+        sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0}
         for step in bar:
-            batch = train_w[order[step * config.batch_size:(step + 1) * config.batch_size]]
-            loss, parts = prior.loss(batch, config.noise_std, config.smooth_weight, config.contact_weight)
+            idx = order[step * config.batch_size:(step + 1) * config.batch_size]
+            loss, parts = prior.loss(train_w[idx], train_valid[idx], config.noise_std, config.smooth_weight,
+                                     config.contact_weight, config.passes)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(prior.parameters(), 1.0)
@@ -147,18 +157,20 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             sched.step()
             sums["loss"] += float(loss.detach())
             sums["nll"] += parts["nll"]
+            sums["nll_own"] += parts["nll_own"]
             bar.set_postfix(nll=f"{parts['nll']:.1f}")
         record = {
             "epoch": epoch + 1,
             "train_loss": sums["loss"] / steps_per_epoch,
             "train_nll_per_frame": sums["nll"] / steps_per_epoch,
+            "train_nll_own_history": sums["nll_own"] / steps_per_epoch,
             "val_nll_per_frame": None,
             "val_nll_median": None,
             "lr": sched.get_last_lr()[0],
             "minutes": (time.perf_counter() - t_start) / 60,
         }
         if val_w is not None:
-            record["val_nll_per_frame"], record["val_nll_median"] = validation_nll(prior, val_w)
+            record["val_nll_per_frame"], record["val_nll_median"] = validation_nll(prior, val_w, val_valid)
         history.append(record)
         logf.write(json.dumps(record) + "\n")
         logf.flush()

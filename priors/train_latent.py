@@ -338,7 +338,7 @@ class LatentTrainer:
         meta["epochs_done"] = len(self.history)
         meta["phase_next"] = self.phase
         meta["phases_done"] = [p for p in PHASES if self.phase is None or PHASES.index(p) < PHASES.index(self.phase)]
-        save_prior(self.prior, out)
+        save_prior(self.prior, out, dtype=torch.float16)
         atomic_torch_save(self.state(), state_path(out))
 
 
@@ -356,7 +356,7 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
     prior = trainer.prior if trainer.phase is None else trainer.run(out, progress)
     if trainer.phase is None and "attribute_directions" not in prior.metadata:
         add_directions(prior, dataset, config.seed)
-        save_prior(prior, out)
+        save_prior(prior, out, dtype=torch.float16)
     return prior.eval()
 
 

@@ -1,9 +1,7 @@
 """Tiny real priors for the prior tests, built from the CMU excerpts in tests/data.
 
 The dataset and the briefly trained prior are cached per test process, so the three
-prior test modules share one build (a few seconds on two cores). Modules that import
-``single_thread`` run on one torch thread: tiny models gain nothing from more, and on a
-busy two-core machine spinning threads make them many times slower.
+prior test modules share one build (a few seconds on two cores).
 """
 from __future__ import annotations
 
@@ -20,14 +18,6 @@ from priors.ccnet import CCNetConfig, CCNetPrior
 DATA = Path(__file__).parent / "data"
 #: Small enough to train in a second, deep enough to have a receptive field of 8 frames.
 TINY = CCNetConfig(channels=16, skip_channels=16, dilations=(1, 2, 4), input_dropout=0.0)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @functools.lru_cache(maxsize=None)

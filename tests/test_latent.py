@@ -22,7 +22,6 @@ from priors.train_latent import LatentTrainConfig, log_path, state_path, train_l
 from problems.latent import LatentOptions, complete, fuse, infill, reconstruct
 
 from priorkit import DATA, cmu_clips, tiny_dataset
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 WINDOW = 32
 

@@ -17,7 +17,6 @@ from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, N
                                  nearest_on_polyline_sq)
 
 from priorkit import cmu_clips, features, tiny_prior
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 LEAD, T = 2, 5          # solved frames before the window, window frames
 FIRST = 10              # global index of the window's first frame

@@ -40,11 +40,11 @@ def test_nll_shapes_and_batching(prior, x):
     assert nll.shape == (35,) and torch.isfinite(nll).all()
     batch = torch.stack((x, x.flip(0)))
     both = prior.nll(batch[:, 5:], context=batch[:, :5])
-    assert torch.allclose(both[0], nll, atol=1e-5)
-    assert torch.allclose(both[1], prior.nll(x.flip(0)[5:], context=x.flip(0)[:5]), atol=1e-5)
+    assert torch.allclose(both[0], nll, atol=2e-4)
+    assert torch.allclose(both[1], prior.nll(x.flip(0)[5:], context=x.flip(0)[:5]), atol=2e-4)
     # one context shared by a batch of continuations
     shared = prior.nll(batch[:, 5:], context=x[:5])
-    assert torch.allclose(shared[0], nll, atol=1e-5)
+    assert torch.allclose(shared[0], nll, atol=2e-4)
 
 
 @pytest.mark.parametrize("n_context", [0, 6])

@@ -21,7 +21,6 @@ from motionopt.solver import PSOOptions, Problem, SolverOptions, seam_report, so
 from priors.checkpoint import CHECKPOINT_DIR, load_prior
 
 from priorkit import DATA, cmu_clips, tiny_prior
-from priorkit import single_thread  # noqa: F401  (autouse: one torch thread for tiny models)
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -16,7 +16,7 @@ from problems.common import clamped_rollout, root_features
 from problems.denoise import choose_cutoff, estimate_noise, low_pass
 from problems.edit import reach
 
-from priorkit import single_thread, tiny_prior  # noqa: F401
+from priorkit import tiny_prior
 
 DATA = Path(__file__).parent / "data"
 

@@ -44,12 +44,12 @@ def test_training_writes_checkpoint_state_and_log(trained):
 def test_training_lowers_nll_and_ships_the_selected_epoch(trained):
     records = [json.loads(line) for line in log_path(trained).read_text().splitlines()]
     # one training clip: the held-out one (another dancer, another root height) says little
-    assert records[-1]["train_nll_per_frame"] < records[0]["train_nll_per_frame"] - 30
+    assert records[-1]["train_nll_per_frame"] < records[0]["train_nll_per_frame"] - 20
     c = config()
-    val = tiny_dataset().windows("val", c.window, c.window // 2)
+    val, valid = tiny_dataset().padded_windows("val", c.window, c.window // 2, c.min_clip_frames)
     meta = read_checkpoint(trained)["metadata"]
     selected = meta["history"][meta["selected_epoch"] - 1]
-    mean, median = validation_nll(load_prior(trained), val)
+    mean, median = validation_nll(load_prior(trained), val, valid)
     assert (mean, median) == (pytest.approx(selected["val_nll_per_frame"], rel=1e-5),
                               pytest.approx(selected["val_nll_median"], rel=1e-5))
 

@@ -21,6 +21,18 @@ class UserError(Exception):
     """A problem with what the user asked for, reported in one line."""
 
 
+def frame_range(start: int, stop: int | None, n: int, path: str, min_frames: int = 1) -> slice:
+    """The frames ``--start``/``--stop`` select from a clip of ``n`` frames (``path``)."""
+    stop = n if stop is None else stop
+    if not 0 <= start < n:
+        raise UserError(f"--start {start} is outside {path}, whose frames are 0 to {n - 1}")
+    if not start < stop <= n:
+        raise UserError(f"--stop {stop} must be after --start {start} and at most {n} (the frame count of {path})")
+    if stop - start < min_frames:
+        raise UserError(f"--start and --stop leave fewer than {min_frames} frames")
+    return slice(start, stop)
+
+
 class _Parser(argparse.ArgumentParser):
     """Argument errors in one line on stderr (``motionopt CMD: error: ...``), exit 2."""
 

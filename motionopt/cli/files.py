@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from . import UserError, add_common
+from . import UserError, add_common, frame_range
 
 UNITS = ("cm", "m", "mm", "in")
 
@@ -63,12 +63,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         raise UserError(f"{out} is the input file; pass --force to overwrite it" if same
                         else f"{out} exists; pass --force to overwrite it")
     motion = bvh.load(args.input, unit=args.source_unit, fps=args.source_fps)
-    n = motion.num_frames
-    stop = n if args.stop is None else args.stop
-    if not (0 <= args.start < stop <= n):
-        raise UserError(f"--start {args.start} and --stop {stop} must satisfy 0 <= start < stop <= {n}, "
-                        f"the frame count of {args.input}")
-    motion = motion[args.start:stop]
+    motion = motion[frame_range(args.start, args.stop, motion.num_frames, args.input)]
     for pattern in args.drop_joints:
         if not any(fnmatch.fnmatchcase(name, pattern) for name in motion.skeleton.names):
             raise UserError(f"--drop-joints {pattern!r} matches no joint; joints are: "

@@ -18,6 +18,9 @@ def register(sub) -> None:
     p.add_argument("--window", type=int, default=96, help="frames per training window (default 96; "
                    "every clip shorter than this is left out)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    p.add_argument("--passes", type=int, default=2,
+                   help="passes per batch; passes after the first learn from the model's own predictions "
+                   "(default 2; 1 is plain teacher forcing)")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
 
@@ -75,7 +78,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     ds = training_dataset(args)
     cfg = TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
-                      threads=args.threads)
+                      threads=args.threads, passes=args.passes)
     meta = {"training_command": train_command(args), "data": str(Path(args.data)), "licence": args.licence}
     train_prior(ds, args.out, cfg, metadata=meta, progress=not args.quiet, force=args.force)
     if not args.quiet:

@@ -5,7 +5,7 @@ import argparse
 import re
 from pathlib import Path
 
-from . import UserError, add_common
+from . import UserError, add_common, frame_range
 
 KINDS = ("filmstrip", "path", "trajectory")
 
@@ -64,15 +64,7 @@ def _load(path: str, args: argparse.Namespace):
     from motionopt import bvh
 
     motion = bvh.load(path, unit=args.unit, fps=args.source_fps)
-    n = motion.num_frames
-    stop = n if args.stop is None else args.stop
-    if not 0 <= args.start < n:
-        raise UserError(f"--start {args.start} is outside {path}, whose frames are 0 to {n - 1}")
-    if not args.start < stop <= n:
-        raise UserError(f"--stop {stop} must be after --start {args.start} and at most {n} (the frame count of {path})")
-    if stop - args.start < 2:
-        raise UserError("--start and --stop leave fewer than 2 frames to draw")
-    return motion[args.start:stop]
+    return motion[frame_range(args.start, args.stop, motion.num_frames, path, min_frames=2)]
 
 
 def cmd_render(args: argparse.Namespace) -> int:
