@@ -4,9 +4,9 @@ A 1x1 encoder, gated residual blocks of dilated causal convolutions with skip
 connections, and a decoder that outputs, for frame t, a diagonal Gaussian over the
 pose features of frame t (log-std clamped) and contact logits, from frames before t
 only. One teacher-forced pass scores a window. The mean of the joint and root-tilt
-rotations is predicted as a change from frame t-1; the root channels (ground velocity,
-yaw rate, height), which are rates or bounded already, are predicted directly: as
-changes their errors integrate twice and free-running rollouts speed up without bound.
+rotations and of the root height is predicted as a change from frame t-1; the root
+rates (ground velocity, yaw rate) are predicted directly: as changes their errors
+integrate twice and free-running rollouts speed up without bound.
 
 Dimensions that never move in the training data (``Normalizer.moving``) are held at
 their previous value and left out of the likelihood: a prior that has only seen a
@@ -40,14 +40,18 @@ class CCNetConfig:
     log_std_min: float = -5.0
     log_std_max: float = 1.0
     input_dropout: float = 0.1
-    #: Predict the root channels directly rather than as a change from the previous frame.
+    #: Predict the root rates (ground velocity, yaw rate) directly rather than as a change
+    #: from the previous frame.
     absolute_root: bool = True
+    #: Predict the root height directly too (older checkpoints); a change is more precise.
+    absolute_height: bool = False
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
         d = dict(d)
         d["dilations"] = tuple(d["dilations"])
         d.setdefault("absolute_root", False)  # checkpoints from before the field predicted changes
+        d.setdefault("absolute_height", d["absolute_root"])  # and from before this one, like the rates
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -109,7 +113,8 @@ class CCNetPrior(nn.Module):
         p = self.spec.pose_dim
         mean = history[..., :p] + out[..., :p] * self.moving
         if self.config.absolute_root:
-            r = self.spec.slices()["root_tilt"].start
+            s = self.spec.slices()
+            r = (s["root_tilt"] if self.config.absolute_height else s["root_height"]).start
             mean = torch.cat((out[..., :r], mean[..., r:]), dim=-1)
         log_std = out[..., p:2 * p].clamp(self.config.log_std_min, self.config.log_std_max)
         return mean, log_std, out[..., 2 * p:]

@@ -100,7 +100,7 @@ def resumed_architecture(state: dict, requested: CCNetConfig) -> CCNetConfig:
     that a resumed run keeps the meaning of its weights (states from before the
     architecture was stored hold the same settings with changes predicted for the root)."""
     stored = (CCNetConfig.from_dict(state["model_config"]) if "model_config" in state
-              else replace(requested, absolute_root=False))
+              else replace(requested, absolute_root=False, absolute_height=False))
     if stored != requested:
         log.warning("resuming with the architecture the run was started with: %s", stored)
     return stored

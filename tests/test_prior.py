@@ -138,19 +138,19 @@ def test_sampling_is_seeded_and_follows_the_predicted_mean(prior, x):
     assert two.shape == (2, 5, x.shape[-1]) and torch.allclose(two[0], two[1])
 
 
-@pytest.mark.parametrize("absolute_root", [True, False])
-def test_root_channels_are_predicted_directly_and_rotations_as_changes(x, absolute_root):
+@pytest.mark.parametrize("absolute_root,absolute_height,direct", [(True, False, 3), (True, True, 4), (False, False, 0)])
+def test_root_rates_are_predicted_directly_and_the_rest_as_changes(x, absolute_root, absolute_height, direct):
     """An untrained prior outputs zeros: its mean is then 0 (the data mean) where it
-    predicts directly, and the previous frame where it predicts a change."""
+    predicts directly (the root rates; the height too in older checkpoints), and the
+    previous frame where it predicts a change."""
     from dataclasses import replace
 
     fresh = fresh_prior()
-    untrained = type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton,
-                            replace(fresh.config, absolute_root=absolute_root)).eval()
+    config = replace(fresh.config, absolute_root=absolute_root, absolute_height=absolute_height)
+    untrained = type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton, config).eval()
     mean, _, _ = untrained.gaussian(x[1:], context=x[:1])
-    r = fresh.spec.slices()["root_tilt"].start
-    assert torch.equal(mean[:, r:], x[:-1, r:fresh.spec.pose_dim])
-    assert torch.equal(mean[:, :r], torch.zeros_like(mean[:, :r]) if absolute_root else x[:-1, :r])
+    assert torch.equal(mean[:, direct:], x[:-1, direct:fresh.spec.pose_dim])
+    assert torch.equal(mean[:, :direct], torch.zeros_like(mean[:, :direct]))
 
 
 def test_checkpoint_from_before_absolute_root_keeps_its_meaning(prior, x, tmp_path):
@@ -162,10 +162,24 @@ def test_checkpoint_from_before_absolute_root_keeps_its_meaning(prior, x, tmp_pa
     save_prior(old, path)
     data = read_checkpoint(path)
     del data["config"]["absolute_root"]
+    del data["config"]["absolute_height"]
     torch.save(data, path)
     loaded = load_prior(path)
-    assert loaded.config.absolute_root is False
+    assert loaded.config.absolute_root is False and loaded.config.absolute_height is False
     assert torch.equal(loaded.nll(x), old.nll(x)) and not torch.equal(loaded.nll(x), prior.nll(x))
+
+
+def test_checkpoint_from_before_absolute_height_predicts_the_height_directly(prior, x, tmp_path):
+    from dataclasses import replace
+
+    old = copy.deepcopy(prior)
+    old.config = replace(prior.config, absolute_root=True, absolute_height=True)
+    path = tmp_path / "old.pt"
+    save_prior(old, path)
+    data = read_checkpoint(path)
+    del data["config"]["absolute_height"]
+    torch.save(data, path)
+    assert load_prior(path).config.absolute_height is True
 
 
 def test_checkpoint_round_trip_gives_identical_nll(prior, x, tmp_path):

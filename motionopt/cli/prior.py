@@ -89,7 +89,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 def train_command(args: argparse.Namespace) -> str:
     """The full train-prior command line, defaults included, that reproduces a training."""
     words = ["motionopt", "train-prior", "--data", args.data, "--out", args.out, "--fps", f"{args.fps:g}",
-             "--unit", args.unit, "--epochs", str(args.epochs), "--window", str(args.window), "--seed", str(args.seed),
+             "--unit", args.unit, "--epochs", str(args.epochs), "--window", str(args.window),
+             "--passes", str(args.passes), "--seed", str(args.seed),
              "--licence", args.licence]
     for flag, values in (("--val", args.val), ("--include", args.include)):
         if values is not None:
