@@ -75,11 +75,7 @@ class MotionDataset:
 
     def windows(self, split: str, length: int, stride: int) -> Tensor:
         """Overlapping normalised windows (N, length, D) cut from every clip of a split."""
-        clips = self.train if split == "train" else self.val
-        out = [x.unfold(0, length, stride).permute(0, 2, 1) for x in clips.values() if len(x) >= length]
-        if not out:
-            raise ValueError(f"no {split} clip is at least {length} frames long")
-        return self.normalizer.normalize(torch.cat(out)).float()
+        return self.padded_windows(split, length, stride, min_length=length)[0]
 
     def padded_windows(self, split: str, length: int, stride: int, min_length: int = 8) -> tuple[Tensor, Tensor]:
         """Like ``windows``, plus every clip shorter than ``length`` (but at least

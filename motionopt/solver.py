@@ -62,14 +62,15 @@ class SolverOptions:
     window: int = 34
     overlap: int = 17
     method: str = "scipy"
-    # 30: bench/solver.py (throughput) puts it at about 35 new frames/s for path following
-    # on this 2-core CPU with 0.5 cm path error; 40 gives 0.4 cm at about 27 frames/s.
+    # 30: bench/solver.py (throughput) puts it at about 43 new frames/s for path following
+    # on this 2-core CPU with 1.1 cm path error; 40 gives about the same error at 35 frames/s.
     max_iter: int = 30
     ftol: float = 1e-7
     gtol: float = 1e-5
     history: int = 10
-    # Off by default: in bench/solver.py the swarm beat plain L-BFGS given the same time on
-    # 2 of 10 held-out clips only. Pass PSOOptions() to turn it on.
+    # Off by default: in bench/solver.py, against plain L-BFGS given the same time, the swarm
+    # lowered the final objective on 0 and the path error on 2 of 10 held-out clips.
+    # Pass PSOOptions() to turn it on.
     pso: PSOOptions | None = None
     temperature: float = 0.3
     seed: int = 0

@@ -16,7 +16,7 @@ def register(sub) -> None:
     add_training_data_args(p)
     p.add_argument("--epochs", type=int, default=40)
     p.add_argument("--window", type=int, default=96, help="frames per training window (default 96; "
-                   "every clip shorter than this is left out)")
+                   "clips shorter than this, down to 8 frames, are padded)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
     p.add_argument("--passes", type=int, default=2,
                    help="passes per batch; passes after the first learn from the model's own predictions "
