@@ -5,13 +5,17 @@ statistics, frame rate, architecture, training command, data provenance and lice
 """
 from __future__ import annotations
 
-import os
-import tempfile
+import functools
+import pickle
+import re
+import warnings
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from motionopt.atomic import atomic_file
 from motionopt.dataset import Normalizer
 from motionopt.features import FEATURE_VERSION, FeatureSpec
 from motionopt.skeleton import Skeleton
@@ -40,15 +44,8 @@ def skeleton_from_dict(d: dict) -> Skeleton:
 def atomic_torch_save(obj: object, path: Path) -> None:
     """torch.save through a temporary file and a rename, so a stop leaves no half file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_file(path, "wb") as f:
+        torch.save(obj, f)
 
 
 def save_prior(prior, path: str | Path, extra: dict | None = None, dtype: torch.dtype = torch.float32) -> None:
@@ -70,20 +67,153 @@ def save_prior(prior, path: str | Path, extra: dict | None = None, dtype: torch.
 
 
 def read_checkpoint(path: str | Path) -> dict:
+    """The sections of a prior checkpoint, loaded without running any code from the file
+    (``weights_only``: tensors and plain data only) and checked before anything uses them,
+    so a damaged, foreign or hostile file fails with a one-line ``CheckpointError``."""
     path = Path(path)
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist")
+    data = _load_plain(path)
+    _check_sections(data, path)
+    return data
+
+
+def _load_plain(path: Path) -> object:
+    """``torch.load`` of tensors and plain data only; what it refuses or cannot read, as a CheckpointError."""
     try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # torch warns about the pickle protocol of files it did not write
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        text = str(e)
+        if "Weights only load failed" in text and "Unsupported operand" not in text:
+            named = re.search(r"GLOBAL ([\w.]+)", text)
+            raise CheckpointError(
+                f"{path} is refused: it holds Python objects other than tensors and plain data"
+                f"{f' ({named.group(1)})' if named else ''}, which could run code when loaded; only load "
+                "checkpoints you trust (motionopt writes tensors and plain data only)") from None
+        raise CheckpointError(f"{path} is not a motionopt checkpoint: not a file torch.save writes "
+                              f"({_first_sentence(text)})") from None
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same clear message
-        raise CheckpointError(f"{path} is not a motionopt checkpoint ({type(e).__name__}: {e})") from None
-    if not isinstance(data, dict) or "spec" not in data or "state_dict" not in data:
-        raise CheckpointError(f"{path} is not a motionopt prior checkpoint")
+        detail = _first_sentence(str(e))
+        raise CheckpointError(f"{path} is not a motionopt checkpoint, or is damaged (cut short?): "
+                              f"{type(e).__name__}{': ' + detail if detail else ''}") from None
+
+
+def _first_sentence(text: str) -> str:
+    """The informative part of a library's (often multi-line) error message, for one line."""
+    lines = [s.strip() for s in text.splitlines() if s.strip() and "Weights only load failed" not in s
+             and "WeightsUnpickler" not in s and "Check the documentation" not in s]
+    first = (lines[0] if lines else text.strip()).split(". ")[0]
+    return first if len(first) <= 160 else first[:157] + "..."
+
+
+#: The sections ``save_prior`` writes and their types (a checkpoint may hold more).
+SECTIONS = {"kind": str, "config": dict, "spec": dict, "skeleton": dict, "normalizer": dict, "metadata": dict,
+            "state_dict": dict}
+#: Largest whole number a prior's config may hold: a size or a dilation (the shipped ones stay under 300),
+#: bounded so that a hostile config cannot ask for padding or layers that exhaust memory.
+MAX_CONFIG_INT = 2**14
+
+
+def _check_sections(data: object, path: Path) -> None:
+    """Raise a CheckpointError naming the first section of ``data`` that is not what
+    ``save_prior`` writes: missing, of another type, or inconsistent with the spec."""
+    if not isinstance(data, dict):
+        raise CheckpointError(f"{path} is not a motionopt prior checkpoint: it holds a {type(data).__name__}, "
+                              "not a dict of sections")
+    missing = [k for k in SECTIONS if k not in data]
+    if missing:
+        raise CheckpointError(f"{path} is not a motionopt prior checkpoint: it lacks {', '.join(missing)}")
+    for key, kind in SECTIONS.items():
+        _need(isinstance(data[key], kind), path, f"its {key} must be a {kind.__name__}, got {type(data[key]).__name__}")
     version = data["spec"].get("version")
     if version != FEATURE_VERSION:
-        raise CheckpointError(f"{path} uses feature version {version}; this motionopt reads version "
+        raise CheckpointError(f"{path} uses feature version {shown(version)}; this motionopt reads version "
                               f"{FEATURE_VERSION}. Retrain the prior with `motionopt train-prior`.")
-    return data
+    spec = _check_spec(data["spec"], path)
+    _check_skeleton(data["skeleton"], spec, path)
+    _check_normalizer(data["normalizer"], spec.dim, path)
+    _need(all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in data["state_dict"].items()), path,
+          "its state_dict must map parameter names to tensors")
+    _need(all(isinstance(k, str) and _config_value(v) for k, v in data["config"].items()), path,
+          f"its config must map names to numbers, strings or lists of them, whole numbers within 0 to "
+          f"{MAX_CONFIG_INT} (sizes and dilations)")
+    history = data["metadata"].get("history", [])
+    _need(isinstance(history, list) and all(isinstance(r, dict) for r in history), path,
+          "its metadata history must be a list of records")
+
+
+def _config_value(value: object) -> bool:
+    """A number (whole numbers within 0 to ``MAX_CONFIG_INT``), bool or string, or a list of them."""
+    items = value if isinstance(value, (list, tuple)) else [value]
+    return all(isinstance(v, (bool, str)) or (_number(v) and (isinstance(v, float) or 0 <= v <= MAX_CONFIG_INT))
+               for v in items)
+
+
+def _need(ok: bool, path: Path, what: str) -> None:
+    if not ok:
+        raise CheckpointError(f"{path} is not a usable prior checkpoint: {what}")
+
+
+def shown(value: object, width: int = 40) -> str:
+    """``repr`` of a value read from a file, for an error message: cut to ``width`` characters."""
+    text = repr(value)
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def _number(value: object) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) < float("inf")
+
+
+def _names(value: object) -> bool:
+    return isinstance(value, (list, tuple)) and all(isinstance(n, str) for n in value)
+
+
+def _check_spec(d: dict, path: Path) -> FeatureSpec:
+    """The spec of a checkpoint, its entries checked."""
+    unknown = [k for k in d if k not in {f.name for f in fields(FeatureSpec)}]
+    _need(not unknown, path, f"its spec has unknown entries {shown(unknown)}")
+    for key in ("joints", "contact_joints"):
+        _need(_names(d.get(key)), path, f"its spec's {key} must be a list of joint names, got {shown(d.get(key))}")
+    joints = d["joints"]
+    _need(len(joints) > 0 and len(set(joints)) == len(joints), path, "its spec's joints must be distinct names")
+    _need(set(d["contact_joints"]) <= set(joints), path, "its spec's contact joints must be among its joints")
+    for key in ("fps", "contact_height", "contact_speed"):
+        _need(_number(d.get(key, 1.0)) and d.get(key, 1.0) > 0, path,
+              f"its spec's {key} must be a positive number, got {shown(d.get(key))}")
+    return FeatureSpec.from_dict(d)
+
+
+def _check_skeleton(d: dict, spec: FeatureSpec, path: Path) -> None:
+    """The skeleton section: lists of the right types that make a valid Skeleton with the spec's joints."""
+    _need(_names(d.get("names")), path, "its skeleton's names must be a list of joint names")
+    parents, offsets, channels = d.get("parents"), d.get("offsets"), d.get("channels")
+    _need(isinstance(parents, list) and all(isinstance(p, int) and not isinstance(p, bool) for p in parents), path,
+          "its skeleton's parents must be a list of joint indices")
+    _need(isinstance(offsets, list) and all(isinstance(o, list) and len(o) == 3 and all(map(_number, o))
+                                            for o in offsets), path,
+          "its skeleton's offsets must be a list of [x, y, z] numbers")
+    _need(isinstance(channels, list) and all(_names(c) for c in channels), path,
+          "its skeleton's channels must be a list of channel-name lists")
+    try:
+        skeleton = skeleton_from_dict(d)
+    except ValueError as e:
+        raise CheckpointError(f"{path} is not a usable prior checkpoint: its skeleton is invalid ({e})") from None
+    missing = [n for n in spec.joints if n not in skeleton.names]
+    _need(not missing, path, f"its skeleton lacks the modelled joints {shown(missing)}")
+
+
+def _check_normalizer(d: dict, dim: int, path: Path) -> None:
+    """Mean and std: finite float tensors of the spec's feature size, std positive."""
+    for key in ("mean", "std"):
+        v = d.get(key)
+        shape = tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__
+        _need(isinstance(v, torch.Tensor) and v.is_floating_point() and tuple(v.shape) == (dim,), path,
+              f"its normalizer {key} must be {dim} floats (the spec's feature size), got {shape}")
+        _need(bool(torch.isfinite(v).all()), path, f"its normalizer {key} holds NaN or infinite values")
+    _need(bool((d["std"] > 0).all()), path, "its normalizer std must be positive")
 
 
 def load_prior(path: str | Path):
@@ -94,16 +224,53 @@ def load_prior(path: str | Path):
     data = read_checkpoint(path)
     kinds = {"CCNetPrior": (CCNetPrior, CCNetConfig), "LatentPrior": (LatentPrior, LatentConfig)}
     if data["kind"] not in kinds:
-        raise CheckpointError(f"{path}: unknown prior kind {data['kind']!r}")
+        raise CheckpointError(f"{path}: unknown prior kind {shown(data['kind'])}")
     cls, cfg = kinds[data["kind"]]
-    spec = FeatureSpec.from_dict(data["spec"])
-    norm = Normalizer(data["normalizer"]["mean"].double(), data["normalizer"]["std"].double())
-    prior = cls(spec, norm, skeleton_from_dict(data["skeleton"]), cfg.from_dict(data["config"]), data["metadata"])
+    parts = (FeatureSpec.from_dict(data["spec"]),
+             Normalizer(data["normalizer"]["mean"].double(), data["normalizer"]["std"].double()),
+             skeleton_from_dict(data["skeleton"]))
+    try:
+        config = cfg.from_dict(data["config"])
+        with torch.device("meta"):  # shapes only: a hostile config cannot make it allocate
+            shell = cls(*parts, config, data["metadata"])
+    except (TypeError, ValueError, KeyError, RuntimeError) as e:
+        raise CheckpointError(f"{path}: its config does not describe a {data['kind']} "
+                              f"({type(e).__name__}: {_first_sentence(str(e))})") from None
+    _check_shapes(shell.state_dict(), data["state_dict"], path)
+    prior = cls(*parts, config, data["metadata"])
     prior.load_state_dict(data["state_dict"])
     prior.eval()
     for p in prior.parameters():
         p.requires_grad_(False)
     return prior
+
+
+def _check_shapes(want: dict, got: dict, path: Path) -> None:
+    """The stored weights are exactly those the config builds, shape for shape."""
+    for key in sorted(want.keys() | got.keys()):
+        a = tuple(want[key].shape) if key in want else None
+        b = tuple(got[key].shape) if key in got else None
+        if a != b:
+            raise CheckpointError(f"{path}: its weights do not fit its config: {key} is "
+                                  f"{'missing' if b is None else b}, the config makes "
+                                  f"{'no such weight' if a is None else a}")
+
+
+def load_prior_cached(path: str | Path):
+    """``load_prior``, read once per process for each version of a file (its resolved path,
+    size and modification time), so that looking a prior up and then using it loads it once.
+    The prior is shared: treat it as read-only."""
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    st = path.stat()
+    return _load_prior_once(str(path.resolve()), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_prior_once(path: str, size: int, mtime_ns: int):
+    """``load_prior`` of ``path``; size and time only key the cache, so a changed file is read again."""
+    return load_prior(path)
 
 
 def shipped_checkpoints(names: tuple[str, ...] = SHIPPED) -> list[Path]:
@@ -124,7 +291,7 @@ def find_prior_for(skeleton: Skeleton, names: tuple[str, ...] = SHIPPED,
                    train_command: str = "train-prior") -> Path:
     """The first shipped checkpoint (of ``names``) whose modelled joints the skeleton has."""
     for path in shipped_checkpoints(names):
-        spec = FeatureSpec.from_dict(read_checkpoint(path)["spec"])
+        spec = load_prior_cached(path).spec
         if all(n in skeleton.names for n in spec.joints):
             return path
     raise CheckpointError(

@@ -2,7 +2,9 @@
 decoding the solution back onto the user's skeleton, and the result object."""
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -13,6 +15,49 @@ from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
+
+log = logging.getLogger(__name__)
+
+#: Largest user file (such as PATH.csv) read, checked before reading: far more than a real one needs.
+MAX_FILE_BYTES = 50 * 2**20
+#: Largest coordinate (metres) a user file may give: farther than 10 km is a unit mistake, not a motion.
+MAX_COORDINATE = 1e4
+#: Faster than this (m/s) is beyond what a person does: a fast run (sprinters peak near 10 m/s, briefly).
+MAX_HUMAN_SPEED = 8.0
+
+
+def read_text(path: Path, what: str, limit: int = MAX_FILE_BYTES) -> str:
+    """The text of a user file (``what`` it should hold, for messages): a regular file of at
+    most ``limit`` bytes, checked before reading, in UTF-8 with or without a BOM. Errors
+    are ``ValueError`` (``FileNotFoundError`` for a missing file) naming the file, and the
+    line of a byte that is not UTF-8."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist")
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file; expected {what}")
+    try:
+        size = path.stat().st_size
+        if size <= limit:
+            with path.open("rb") as f:
+                data = f.read(limit + 1)  # bounded, should the file grow meanwhile
+            size = max(size, len(data))
+    except OSError as e:
+        raise ValueError(f"{path} cannot be read ({e.strerror or e})") from None
+    if size > limit:
+        raise ValueError(f"{path} is {size / 2**20:.1f} MB; {what} of more than {limit / 2**20:g} MB is refused")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise ValueError(f"{path}:{line}: byte 0x{data[e.start]:02x} is not UTF-8; save the file as UTF-8 "
+                         "text") from None
+
+
+def warned(texts: list[str]) -> list[str]:
+    """``texts``, each logged as a warning (the command line prints them), for ``TaskResult.warnings``."""
+    for text in texts:
+        log.warning(text)
+    return texts
 
 
 @dataclass
@@ -58,18 +103,22 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
 
 @dataclass
 class TaskResult:
-    """An edited motion on the user's skeleton, with the solver's report and task metrics."""
+    """An edited motion on the user's skeleton, with the solver's report and task metrics;
+    ``warnings``: constraints the task could not meet (which, and by how much)."""
 
     motion: Motion
     model_motion: Motion
     solver: MAPResult | None
     metrics: dict = field(default_factory=dict)
     settings: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def report(self) -> dict:
-        """JSON-ready: per-term values at start and end, metrics, timings, settings."""
+        """JSON-ready: per-term values at start and end, metrics, timings, settings, and
+        every warning of the run (the task's, then the solver's) under "warnings"."""
         r = {"metrics": self.metrics, "settings": self.settings,
-             "frames": self.motion.num_frames, "fps": self.motion.fps}
+             "frames": self.motion.num_frames, "fps": self.motion.fps,
+             "warnings": self.warnings + (self.solver.warnings if self.solver is not None else [])}
         if self.solver is not None:
             s = self.solver
             r["solver"] = {"fun_start": s.fun_start, "fun": s.fun, "terms_start": s.terms_start, "terms": s.terms,

@@ -15,8 +15,19 @@ from motionopt.kinematics import fk
 from motionopt.motion import Motion
 from motionopt.objective import JointPositionTerm, PoseFidelityTerm
 from motionopt.solver import SolverOptions
+from priors.checkpoint import shown
 
-from .common import TaskResult, TermSigmas, back_to_file, nearest_model_frame, prepare, run, standard_terms
+from .common import (MAX_COORDINATE, TaskResult, TermSigmas, back_to_file, nearest_model_frame, prepare, read_text,
+                     run, standard_terms, warned)
+
+#: A target missed by more than this (m) is reported.
+TARGET_TOLERANCE = 0.01
+#: Most targets a TARGETS.json may hold.
+MAX_TARGETS = 1000
+#: Largest TARGETS.json read (checked before reading): 1000 targets take about 100 kB.
+MAX_TARGETS_BYTES = 5 * 2**20
+#: What a target may say.
+TARGET_KEYS = ("joint", "frame", "position", "offset")
 
 
 @dataclass(frozen=True)
@@ -31,32 +42,100 @@ class JointTarget:
 
 
 def load_targets(path: str | Path) -> list[JointTarget]:
-    """Read TARGETS.json: a list of {"joint", "frame": i or [i, j], "position" or "offset"}."""
+    """Read TARGETS.json: a list of {"joint", "frame": i or [i, j], "position" or "offset"}.
+
+    The file is data, never evaluated: UTF-8 (a BOM is fine) of at most ``MAX_TARGETS_BYTES``,
+    at most ``MAX_TARGETS`` targets, no other keys, whole non-negative frame numbers, three
+    finite numbers within ``MAX_COORDINATE`` metres. Errors are ``ValueError`` naming the
+    file and the target (its index in the list)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}:{e.lineno}: not valid JSON ({e.msg})") from None
+    data = _parse_json(path)
     if not isinstance(data, list) or not data:
         raise ValueError(f"{path}: expected a non-empty JSON list of targets")
-    out = []
-    for i, item in enumerate(data):
-        where = f"{path}: target {i}"
-        if not isinstance(item, dict) or "joint" not in item or "frame" not in item:
-            raise ValueError(f"{where}: needs 'joint' and 'frame'")
-        if ("position" in item) == ("offset" in item):
-            raise ValueError(f"{where}: give exactly one of 'position' or 'offset'")
-        f = item["frame"]
-        frames = (int(f), int(f)) if isinstance(f, (int, float)) else tuple(int(v) for v in f)
-        if len(frames) != 2 or frames[1] < frames[0]:
-            raise ValueError(f"{where}: 'frame' must be a frame number or [first, last]")
-        vec = item.get("position", item.get("offset"))
-        if not (isinstance(vec, list) and len(vec) == 3 and all(isinstance(v, (int, float)) for v in vec)):
-            raise ValueError(f"{where}: position/offset must be three numbers [x, y, z] in metres")
-        out.append(JointTarget(str(item["joint"]), frames,
-                               tuple(item["position"]) if "position" in item else None,
-                               tuple(item["offset"]) if "offset" in item else None))
+    if len(data) > MAX_TARGETS:
+        raise ValueError(f"{path}: {len(data)} targets; at most {MAX_TARGETS} are taken")
+    return [_target(item, f"{path}: target {i}") for i, item in enumerate(data)]
+
+
+def _parse_json(path: Path) -> object:
+    """The JSON value of a file, objects with repeated keys refused; errors name the file (and line)."""
+    text = read_text(path, "a JSON list of targets", MAX_TARGETS_BYTES)
+    if not text.strip():
+        raise ValueError(f"{path}: the file is empty; expected a JSON list of targets")
+    try:
+        return json.loads(text, object_pairs_hook=_unique_keys, parse_int=_short_int)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}:{e.lineno}: not valid JSON ({e.msg})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not a list of targets (lists or objects nested too deeply)") from None
+    except ValueError as e:  # from the hooks
+        raise ValueError(f"{path}: {e}") from None
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object, refused if it gives a key twice (JSON would keep the last silently)."""
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"an object gives {shown(key)} twice")
+        out[key] = value
     return out
+
+
+def _short_int(text: str) -> int:
+    """A JSON integer of at most 15 digits (no frame number or coordinate needs more)."""
+    if len(text.lstrip("-")) > 15:
+        raise ValueError(f"the integer {text[:12]}... has {len(text.lstrip('-'))} digits; no target needs that many")
+    return int(text)
+
+
+def _target(item: object, where: str) -> JointTarget:
+    """One entry of TARGETS.json, checked; errors start with ``where``."""
+    if not isinstance(item, dict):
+        raise ValueError(f"{where}: expected an object like {{\"joint\": ..., \"frame\": ..., \"offset\": [...]}}, "
+                         f"got {shown(item)}")
+    unknown = [k for k in item if k not in TARGET_KEYS]
+    if unknown:
+        raise ValueError(f"{where}: unknown key {shown(unknown[0])}; a target has {', '.join(TARGET_KEYS)}")
+    if "joint" not in item or "frame" not in item:
+        raise ValueError(f"{where}: needs 'joint' and 'frame'")
+    if ("position" in item) == ("offset" in item):
+        raise ValueError(f"{where}: give exactly one of 'position' or 'offset'")
+    if not isinstance(item["joint"], str) or not item["joint"]:
+        raise ValueError(f"{where}: 'joint' must be a joint name, got {shown(item['joint'])}")
+    key = "position" if "position" in item else "offset"
+    vec = _vector(item[key], where, key)
+    return JointTarget(item["joint"], _frames(item["frame"], where),
+                       vec if key == "position" else None, vec if key == "offset" else None)
+
+
+def _whole(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _frames(value: object, where: str) -> tuple[int, int]:
+    """'frame': a whole frame number or [first, last], counted from 0."""
+    if _whole(value):
+        frames = (value, value)
+    elif isinstance(value, list) and len(value) == 2 and all(map(_whole, value)):
+        frames = (value[0], value[1])
+    else:
+        raise ValueError(f"{where}: 'frame' must be a whole frame number or [first, last], got {shown(value)}")
+    if not 0 <= frames[0] <= frames[1]:
+        raise ValueError(f"{where}: 'frame' {shown(value)}: frames count from 0 and the last may not come "
+                         "before the first")
+    return frames
+
+
+def _vector(value: object, where: str, key: str) -> tuple[float, float, float]:
+    """'position' or 'offset' (``key``): three finite numbers within ``MAX_COORDINATE`` metres."""
+    if not (isinstance(value, list) and len(value) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise ValueError(f"{where}: '{key}' must be three numbers [x, y, z] in metres, got {shown(value)}")
+    if not all(abs(v) <= MAX_COORDINATE for v in value):  # False for NaN and infinity too
+        raise ValueError(f"{where}: '{key}' {shown(value)} holds a value that is not a number within "
+                         f"{MAX_COORDINATE:g} m (it is in metres)")
+    return tuple(float(v) for v in value)
 
 
 def reach(skeleton, rotations: np.ndarray, root: np.ndarray, joint: int, target: np.ndarray, depth: int = 3,
@@ -64,10 +143,7 @@ def reach(skeleton, rotations: np.ndarray, root: np.ndarray, joint: int, target:
     """Rotation vectors (depth, 3) for the ``depth`` joints above ``joint`` (never the
     root) that bring ``joint`` to ``target`` in one frame (``rotations`` (J, 4), ``root``
     (3,)): damped Gauss-Newton on the world position, the smallest turn that reaches."""
-    chain, j = [], int(skeleton.parents[joint])
-    while j > 0 and len(chain) < depth:
-        chain.append(j)
-        j = int(skeleton.parents[j])
+    chain = limb(skeleton, joint, depth)
     if not chain:
         raise ValueError(f"joint {skeleton.names[joint]!r} hangs from the root: no limb to reach with")
     q0 = torch.from_numpy(rotations)
@@ -92,6 +168,25 @@ def reach(skeleton, rotations: np.ndarray, root: np.ndarray, joint: int, target:
     return out
 
 
+def limb(skeleton, joint: int, depth: int = 3) -> list[int]:
+    """The ``depth`` joints above ``joint`` (fewer near the root, never the root), nearest first:
+    the joints ``reach`` turns."""
+    chain, j = [], int(skeleton.parents[joint])
+    while j > 0 and len(chain) < depth:
+        chain.append(j)
+        j = int(skeleton.parents[j])
+    return chain
+
+
+def limb_length(skeleton, joint: int, top: int) -> float:
+    """Length of the bones from joint ``top`` down to ``joint``: the farthest ``joint`` gets from ``top``."""
+    length, j = 0.0, joint
+    while j != top:
+        length += float(np.linalg.norm(skeleton.offsets[j]))
+        j = int(skeleton.parents[j])
+    return length
+
+
 @dataclass
 class SpatialEdit:
     """Meet joint position targets while the rest of the motion stays as it was.
@@ -103,6 +198,9 @@ class SpatialEdit:
     exactly. With ``refine`` the MAP solver (targets with ``sigma_target`` m, fidelity
     ``sigma_root`` m, ``sigma_angle`` rad, the prior and contacts) then polishes the edited
     frames, and the targets are met again by IK.
+
+    A target missed by more than ``TARGET_TOLERANCE`` (out of the limb's reach, or fighting
+    another target) gives the nearest pose, with ``TaskResult.warnings`` saying by how much.
     """
 
     motion: Motion
@@ -129,18 +227,38 @@ class SpatialEdit:
         if not self.falloff >= 0:
             raise ValueError(f"falloff is in seconds, 0 or more; got {self.falloff}")
 
-    def wanted(self, prep) -> list[tuple[int, int, np.ndarray]]:
-        """(model frame, joint, target position) of every target."""
+    def wanted(self, prep) -> list[list[tuple[int, int, np.ndarray]]]:
+        """(model frame, joint, target position) of each frame of each target, target by target."""
         fps_o, fps_m = self.motion.fps, self.prior.spec.fps
         n = len(prep.x)
         pos_in = prep.model.positions()
         out = []
         for t in self.targets:
             j = self.prior.spec.joints.index(t.joint)
-            for f in range(nearest_model_frame(t.frames[0], fps_o, fps_m),
-                           min(nearest_model_frame(t.frames[1], fps_o, fps_m), n - 1) + 1):
-                out.append((f, j, np.asarray(t.position, float) if t.position is not None
-                            else pos_in[f, j] + np.asarray(t.offset)))
+            out.append([(f, j, np.asarray(t.position, float) if t.position is not None
+                         else pos_in[f, j] + np.asarray(t.offset))
+                        for f in range(nearest_model_frame(t.frames[0], fps_o, fps_m),
+                                       min(nearest_model_frame(t.frames[1], fps_o, fps_m), n - 1) + 1)])
+        return out
+
+    def miss_warnings(self, model: Motion, wanted: list[list[tuple[int, int, np.ndarray]]]) -> list[str]:
+        """For each target (``wanted``, as ``wanted`` gives) missed by more than ``TARGET_TOLERANCE``
+        in the model motion: at how many of its frames, the worst miss and its frame (the
+        input's numbering), and whether it lies beyond the reach of the limb ``reach`` turns."""
+        pos, sk = model.positions(), model.skeleton
+        out = []
+        for k, (t, mine) in enumerate(zip(self.targets, wanted)):
+            miss = np.array([np.linalg.norm(pos[f, j] - tg) for f, j, tg in mine])
+            if miss.max() <= TARGET_TOLERANCE:
+                continue
+            f, j, tg = mine[int(miss.argmax())]
+            top = limb(sk, j)[-1]
+            far, length = float(np.linalg.norm(tg - pos[f, top])), limb_length(sk, j, top)
+            why = (f"; the target is {far:.2f} m from {sk.names[top]}, out of reach of the {length:.2f} m limb"
+                   if far > length else "")
+            out.append(f"edit: target {k} ({t.joint}) is missed by more than {TARGET_TOLERANCE * 100:g} cm at "
+                       f"{int((miss > TARGET_TOLERANCE).sum())} of its {len(mine)} frames, by up to "
+                       f"{miss.max() * 100:.1f} cm at frame {round(f * self.motion.fps / self.prior.spec.fps)}{why}")
         return out
 
     def _meet(self, skeleton, rot: np.ndarray, root: np.ndarray, wanted: list[tuple[int, int, np.ndarray]]) -> np.ndarray:
@@ -149,7 +267,7 @@ class SpatialEdit:
         fade = max(int(round(self.falloff * self.prior.spec.fps)), 0)
         out = rot.copy()
         for joint in sorted({j for _, j, _ in wanted}):
-            mine = sorted((f, tg) for f, j, tg in wanted if j == joint)
+            mine = sorted(((f, tg) for f, j, tg in wanted if j == joint), key=lambda m: m[0])
             frames = np.array([f for f, _ in mine])
             turns = np.stack([reach(skeleton, out[f], root[f], joint, tg) for f, tg in mine])
             # each frame takes the turn of the nearest target frame, faded with distance
@@ -173,7 +291,8 @@ class SpatialEdit:
         prep = prepare(self.motion, prior)
         n = len(prep.x)
         t0 = time.perf_counter()
-        wanted = self.wanted(prep)
+        per_target = self.wanted(prep)
+        wanted = [w for mine in per_target for w in mine]
         rot = self._meet(prep.model.skeleton, prep.model.rotations, prep.model.root, wanted)
         model = prep.model.with_frames(rot, prep.model.root.copy(), None)
         result = None
@@ -203,4 +322,4 @@ class SpatialEdit:
         }
         return TaskResult(back_to_file(model, prep), model, result, metrics,
                           {"sigma_target": self.sigma_target, "targets": len(self.targets), "falloff": self.falloff,
-                           "refine": self.refine})
+                           "refine": self.refine}, warned(self.miss_warnings(model, per_target)))

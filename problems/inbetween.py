@@ -13,8 +13,8 @@ from motionopt.motion import Motion
 from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import SolverOptions
 
-from .common import (TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of, model_frames_in, plant_feet,
-                     prepare, root_features, run, splice, standard_terms)
+from .common import (MAX_HUMAN_SPEED, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of,
+                     model_frames_in, plant_feet, prepare, root_features, run, splice, standard_terms, warned)
 
 
 def parse_ranges(text: str) -> list[tuple[int, int]]:
@@ -56,6 +56,9 @@ class Inbetween:
 
     ``n_frames`` (input frame rate) extends the output past the input's end (prefix
     completion); the kept frames are copied from the input exactly.
+
+    Kept frames too far apart for a person to cover in the gap between them still give the
+    best compromise, with ``TaskResult.warnings`` saying so.
     """
 
     motion: Motion
@@ -77,6 +80,7 @@ class Inbetween:
     def solve(self) -> TaskResult:
         prior = self.prior
         prep = prepare(self.motion, prior)
+        warnings = warned(self.gap_warnings(prep))
         fps_o, fps_m = self.motion.fps, prior.spec.fps
         total_o = self.n_frames or self.motion.num_frames
         n = int(np.ceil((total_o - 1) / fps_o * fps_m - 1e-6)) + 1
@@ -117,7 +121,23 @@ class Inbetween:
                    "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
         return TaskResult(out, model, result, metrics, {"keep": self.keep, "frames": total_o,
                                                         "temperature": self.options.temperature,
-                                                        "refine": self.refine})
+                                                        "refine": self.refine}, warnings)
+
+    def gap_warnings(self, prep) -> list[str]:
+        """Each gap whose kept frames on either side lie too far apart on the ground for a
+        person to cover in the gap's time: the gap, the distance and the speed it implies."""
+        body = self.motion.skeleton.index(prep.model.skeleton.names[0])  # the hips, the model's root
+        ground = self.motion.positions()[:, body][:, [0, 2]]
+        out = []
+        for (_, stop), (start, _) in zip(self.keep, self.keep[1:]):
+            distance = float(np.linalg.norm(ground[start] - ground[stop - 1]))
+            seconds = (start - stop + 1) / self.motion.fps
+            if distance / seconds > MAX_HUMAN_SPEED:
+                out.append(f"inbetween: the gap {stop}:{start} asks the root to cover {distance:.2f} m from kept "
+                           f"frame {stop - 1} to kept frame {start} in {seconds:.2f} s, {distance / seconds:.1f} m/s, "
+                           f"faster than a person runs (about {MAX_HUMAN_SPEED:g} m/s at most); the synthesised "
+                           "frames are the best compromise and cannot look natural")
+        return out
 
     def _fill(self, prep, rot: np.ndarray, root: np.ndarray, a: int, b: int | None, n: int,
               gen: torch.Generator) -> None:

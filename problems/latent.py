@@ -19,7 +19,7 @@ from torch import Tensor
 from motionopt.features import RootStart, decode_motion, decode_positions, to_file_motion
 from motionopt.inversion import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
-from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior
+from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior_cached
 from priors.latent import LatentPrior
 from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
 
@@ -29,7 +29,7 @@ from .common import Prepared, prepare
 def load_latent_for(motion: Motion, path: str | None = None) -> LatentPrior:
     """The named latent checkpoint, or the shipped one whose skeleton matches the motion."""
     path = path or find_prior_for(motion.skeleton, SHIPPED_LATENT, "train-latent")
-    prior = load_prior(path)
+    prior = load_prior_cached(path)
     if not isinstance(prior, LatentPrior):
         raise CheckpointError(f"{path} holds a {type(prior).__name__}, not a latent prior; "
                               "train one with `motionopt train-latent`")

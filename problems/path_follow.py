@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -15,10 +16,20 @@ from motionopt.metrics import foot_skating
 from motionopt.motion import Motion
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.solver import SolverOptions
+from priors.checkpoint import shown
 
-from .common import (Prepared, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of, plant_feet,
-                    
-                     prepare, root_features, run, standard_terms)
+from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, Prepared, TaskResult, TermSigmas, back_to_file,
+                     clamped_rollout, features_of, plant_feet, prepare, read_text, root_features, run, standard_terms,
+                     warned)
+
+#: Most seconds of new motion one run makes (a longer path: several runs, each continuing the last).
+MAX_NEW_SECONDS = 600.0
+#: Seconds over which a seed that ends off the path joins it.
+JOIN_SECONDS = 0.5
+#: Distance (m) from the path beyond which the result is said to leave it.
+PATH_TOLERANCE = 0.1
+#: Most points a PATH.csv may hold: more than 10 minutes at 8 m/s with a point every 5 cm.
+MAX_PATH_POINTS = 100_000
 
 
 def polyline_lengths(path: np.ndarray) -> np.ndarray:
@@ -50,7 +61,7 @@ class PathFollow:
 
     Timing: ``times`` (N,) seconds after the seed's end at each path point, or a constant
     ``speed`` (m/s; default the seed's recent speed, at least 1 m/s). ``seconds`` of new
-    motion (default: until the path's end at that timing).
+    motion (default: until the path's end at that timing; at most ``MAX_NEW_SECONDS``).
 
     The root channels of every new frame are clamped to the path (``root_channels``:
     on the path at its timing, facing along it as the seed faced its way of travel) and
@@ -58,6 +69,9 @@ class PathFollow:
     ``options.temperature``); of ``candidates`` rollouts the one whose feet slide least
     is kept (contacts planted by leg IK in each, sliding measured as ``metrics.foot_skating``). With ``refine`` the MAP solver (path,
     contact and prior terms) then polishes it.
+
+    A timing faster than a person moves, or a result that leaves the path by more than
+    ``PATH_TOLERANCE``, still gives the best compromise, with ``TaskResult.warnings`` saying so.
     """
 
     seed: Motion
@@ -91,6 +105,15 @@ class PathFollow:
             raise ValueError(f"speed must be positive, got {self.speed}")
         if self.seconds is not None and not self.seconds > 0:
             raise ValueError(f"seconds must be positive, got {self.seconds}")
+        wanted = self.seconds or (self.times[-1] if self.times is not None else None)
+        if wanted is not None:
+            self._check_duration(wanted)
+
+    @staticmethod
+    def _check_duration(seconds: float) -> None:
+        if seconds > MAX_NEW_SECONDS:
+            raise ValueError(f"{seconds:g} s of new motion is more than the {MAX_NEW_SECONDS:g} s one run makes; "
+                             "follow a long path in several runs, each continuing the last")
 
     def targets(self, prep: Prepared, fps: float) -> tuple[np.ndarray, int, float]:
         """Per new frame target points (K, 2), the number of new frames, and the speed used."""
@@ -109,6 +132,7 @@ class PathFollow:
         s0 = arc_length_of_nearest(self.path, end)
         remaining = polyline_lengths(self.path)[-1] - s0
         seconds = self.seconds or max(remaining / speed, 1.0 / fps)
+        self._check_duration(seconds)
         n_new = max(1, int(round(seconds * fps)))
         s = s0 + speed * np.arange(1, n_new + 1) / fps
         return point_at(self.path, s), n_new, speed
@@ -152,9 +176,9 @@ class PathFollow:
         fps = prior.spec.fps
         t0 = time.perf_counter()
         tgt, n_new, speed = self.targets(prep, fps)
-        # a seed that ends off the path joins it over the first half second
+        # a seed that ends off the path joins it over the first JOIN_SECONDS
         off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
-        fade = np.clip(1 - np.arange(1, n_new + 1) / max(fps / 2, 1), 0, 1)[:, None]
+        fade = np.clip(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1), 0, 1)[:, None]
         tgt = tgt + off * fade * fade * (3 - 2 * fade)
         n_seed = len(prep.x)
         n = n_seed + n_new
@@ -201,18 +225,59 @@ class PathFollow:
             "speed_m_per_s": speed,
             "frames_per_second": n_new / max(seconds, 1e-9),
         }
+        warnings = warned(self.speed_warnings(speed, float(np.linalg.norm(off))) + distance_warnings(dist))
         return TaskResult(motion, model, result, metrics, {"sigma_path": self.sigma_path, "speed": speed,
                                                            "new_seconds": n_new / fps, "refine": self.refine,
-                                                           "temperature": self.options.temperature})
+                                                           "temperature": self.options.temperature}, warnings)
+
+    def speed_warnings(self, speed: float, join: float) -> list[str]:
+        """Where the timing asks the root to go faster than a person: the path's speed
+        (``speed``, requested or the seed's; with times, their fastest stretch), and the
+        join from the seed's end ``join`` metres away from the path over ``JOIN_SECONDS``."""
+        beyond = f"faster than a person runs (about {MAX_HUMAN_SPEED:g} m/s at most)"
+        out = []
+        if self.times is not None:
+            stretch = np.linalg.norm(np.diff(self.path, axis=0), axis=1)
+            dt = np.diff(self.times)
+            k = int(np.argmax(stretch / dt))
+            if stretch[k] / dt[k] > MAX_HUMAN_SPEED:
+                out.append(f"path-follow: the path's times ask for {stretch[k] / dt[k]:.1f} m/s from t = "
+                           f"{self.times[k]:g} s to {self.times[k + 1]:g} s ({stretch[k]:.2f} m in {dt[k]:g} s), "
+                           f"{beyond}; the motion keeps to the timing as well as it can but cannot look natural")
+        elif speed > MAX_HUMAN_SPEED:
+            what = "the requested speed" if self.speed is not None else "the seed's speed"
+            out.append(f"path-follow: {what} {speed:.1f} m/s is {beyond}; the motion keeps to it as well as it "
+                       "can but cannot look natural")
+        if join / JOIN_SECONDS > MAX_HUMAN_SPEED:
+            out.append(f"path-follow: the seed ends {join:.2f} m from the path at its timing; joining it in "
+                       f"{JOIN_SECONDS:g} s asks for {join / JOIN_SECONDS:.1f} m/s, {beyond}")
+        return out
+
+
+def distance_warnings(dist: np.ndarray) -> list[str]:
+    """Where the new root's distances to the path ``dist`` (K,) exceed ``PATH_TOLERANCE``:
+    on average, and at the end."""
+    out = []
+    if dist.mean() > PATH_TOLERANCE:
+        out.append(f"path-follow: the root keeps {dist.mean():.2f} m from the path on average ({dist.max():.2f} m "
+                   f"at most), beyond the tolerance of {PATH_TOLERANCE:g} m")
+    if dist[-1] > PATH_TOLERANCE:
+        out.append(f"path-follow: the motion ends {dist[-1]:.2f} m from the path, beyond the tolerance of "
+                   f"{PATH_TOLERANCE:g} m")
+    return out
 
 
 def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Read PATH.csv: a header line naming the columns ``x`` and ``z`` (metres, world
     ground plane) and optionally ``t`` (seconds after the seed's end), then one point per
-    line. Returns the points (N, 2) and the times (N,) or None. Errors name the line."""
+    line. Returns the points (N, 2) and the times (N,) or None.
+
+    The file is data, never evaluated: UTF-8 (a BOM is fine) of at most ``MAX_FILE_BYTES``,
+    at most ``MAX_PATH_POINTS`` points, every value a finite number, coordinates within
+    ``MAX_COORDINATE`` metres, ``t`` rising and within ``MAX_NEW_SECONDS``. Errors are
+    ``ValueError`` naming the file and line."""
     path = Path(path)
-    with path.open(newline="", encoding="utf-8-sig") as f:
-        rows = [(i, row) for i, row in enumerate(csv.reader(f), start=1) if any(c.strip() for c in row)]
+    rows = _csv_rows(path)
     if not rows:
         raise ValueError(f"{path}: the file is empty; expected a header line 'x,z' and at least 2 points")
     line, header = rows[0]
@@ -220,28 +285,56 @@ def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     unknown = [n for n in names if n not in ("x", "z", "t")]
     if unknown or "x" not in names or "z" not in names or len(set(names)) != len(names):
         raise ValueError(f"{path}:{line}: the header must name the columns x and z, and optionally t "
-                         f"(like 'x,z' or 't,x,z'); got {','.join(header)!r}")
+                         f"(like 'x,z' or 't,x,z'); got {shown(','.join(header))}")
     values = np.zeros((len(rows) - 1, len(names)))
     for k, (line, row) in enumerate(rows[1:]):
         if len(row) != len(names):
             raise ValueError(f"{path}:{line}: expected {len(names)} values ({','.join(names)}), got {len(row)}")
-        for c, text in enumerate(row):
-            try:
-                values[k, c] = float(text)
-            except ValueError:
-                raise ValueError(f"{path}:{line}: {names[c]} value {text.strip()!r} is not a number") from None
-            if not np.isfinite(values[k, c]):
-                raise ValueError(f"{path}:{line}: {names[c]} value {text.strip()!r} is not a finite number")
+        values[k] = [_cell(text, name, f"{path}:{line}") for name, text in zip(names, row)]
     if len(values) < 2:
         raise ValueError(f"{path}: the path needs at least 2 points, found {len(values)}")
     points = values[:, [names.index("x"), names.index("z")]]
     if "t" not in names:
         return points, None
     times = values[:, names.index("t")]
-    for k in range(len(times)):
-        line = rows[k + 1][0]
-        if times[k] < 0:
-            raise ValueError(f"{path}:{line}: t {times[k]:g} is negative; t counts seconds after the seed's end")
-        if k and times[k] <= times[k - 1]:
-            raise ValueError(f"{path}:{line}: t {times[k]:g} does not come after the previous point's {times[k - 1]:g}")
+    for k in range(1, len(times)):
+        if times[k] <= times[k - 1]:
+            raise ValueError(f"{path}:{rows[k + 1][0]}: t {times[k]:g} does not come after the previous point's "
+                             f"{times[k - 1]:g}")
     return points, times
+
+
+def _csv_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """(line number, cells) of each non-blank CSV row, header included, stopping past the point cap."""
+    reader = csv.reader(io.StringIO(read_text(path, "a CSV path"), newline=""))
+    rows = []
+    try:
+        for row in reader:
+            if any(c.strip() for c in row):
+                rows.append((reader.line_num, row))
+            if len(rows) > MAX_PATH_POINTS + 1:
+                raise ValueError(f"{path}:{reader.line_num}: more than {MAX_PATH_POINTS} points; a path needs "
+                                 "far fewer (a point every few centimetres is plenty)")
+    except csv.Error as e:
+        raise ValueError(f"{path}:{reader.line_num}: not CSV text ({e})") from None
+    return rows
+
+
+def _cell(text: str, name: str, where: str) -> float:
+    """One CSV value: a finite number, a coordinate within ``MAX_COORDINATE`` m or a time
+    within ``MAX_NEW_SECONDS`` s and not negative."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{where}: {name} value {shown(text.strip())} is not a number") from None
+    if not np.isfinite(value):
+        raise ValueError(f"{where}: {name} value {shown(text.strip())} is not a finite number")
+    if name == "t" and value < 0:
+        raise ValueError(f"{where}: t {value:g} is negative; t counts seconds after the seed's end")
+    if name == "t" and value > MAX_NEW_SECONDS:
+        raise ValueError(f"{where}: t {value:g} s is later than the {MAX_NEW_SECONDS:g} s of new motion one run "
+                         "makes")
+    if name != "t" and abs(value) > MAX_COORDINATE:
+        raise ValueError(f"{where}: {name} {value:g} is farther than {MAX_COORDINATE:g} m; the path is in metres, "
+                         "in the seed file's world coordinates")
+    return value

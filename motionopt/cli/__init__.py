@@ -14,11 +14,15 @@ import sys
 from ..bvh import BVHError
 
 #: Modules that add subcommands; a module missing here is simply not offered.
-COMMAND_MODULES = ("files", "prior", "tasks", "latent", "view", "demo")
+COMMAND_MODULES = ("files", "prior", "tasks", "latent", "view", "demo", "batch")
 
 
 class UserError(Exception):
     """A problem with what the user asked for, reported in one line."""
+
+
+#: Errors of the user's input, printed in one line: a bad argument, file or checkpoint.
+USER_ERRORS = (UserError, BVHError, FileExistsError, FileNotFoundError, KeyError, ValueError)
 
 
 def frame_range(start: int, stop: int | None, n: int, path: str, min_frames: int = 1) -> slice:
@@ -67,10 +71,13 @@ def add_common(p: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and not getattr(args, "takes_task_options", False):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    args.task_options = extra
     level = logging.ERROR if getattr(args, "quiet", False) else (
         logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
@@ -78,9 +85,8 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger(name).setLevel(level)
     try:
         return int(args.func(args) or 0)
-    except (UserError, BVHError, FileExistsError, FileNotFoundError, KeyError, ValueError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        print(f"motionopt {args.command}: error: {msg}", file=sys.stderr)
+    except USER_ERRORS as e:
+        print(f"motionopt {args.command}: error: {error_message(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"motionopt {args.command}: interrupted", file=sys.stderr)
@@ -88,6 +94,26 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # output piped into a command that stopped reading (e.g. head)
         sys.stderr.close()
         return 0
+
+
+def error_message(e: Exception) -> str:
+    """The one line a user error is reported with."""
+    return e.args[0] if isinstance(e, KeyError) and e.args else str(e)
+
+
+def run_command(argv: list[str]) -> str | None:
+    """Run one command in this process (as ``main`` would) for a caller that collects
+    errors instead of printing them, such as a batch: None on success, else the error."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:
+        return f"invalid arguments {argv[1:]} (exit status {e.code})"
+    try:
+        status = int(args.func(args) or 0)
+    except USER_ERRORS as e:
+        return error_message(e)
+    return None if status == 0 else f"exit status {status}"
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import json
 import shlex
 from pathlib import Path
 
-from . import UserError, add_common
+from . import add_common
 
 
 def register(sub) -> None:
@@ -143,10 +143,10 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def load_prior_for(motion, path: str | None):
     """The named prior, or the shipped one whose skeleton matches the motion; and its path."""
-    from priors.checkpoint import check_compatible, find_prior_for, load_prior
+    from priors.checkpoint import check_compatible, find_prior_for, load_prior_cached
 
     path = path or find_prior_for(motion.skeleton)
-    prior = load_prior(path)
+    prior = load_prior_cached(path)
     check_compatible(prior.spec, motion.skeleton, path)
     return prior, Path(path)
 

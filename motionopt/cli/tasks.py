@@ -11,14 +11,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import shlex
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
+
+from motionopt.atomic import write_text_atomic
 
 from . import UserError, add_common
 
@@ -115,6 +115,9 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
     io.add_argument("--fps", type=_positive(float), default=None, help="override the input file's frame rate")
     io.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
                     help="length unit of the input file (default: guessed from the skeleton's size)")
+    io.add_argument("--max-frames", type=_positive(int), default=100_000, metavar="N",
+                    help="refuse an input that declares more frames than this, before reading them (default "
+                    "100000: 14 minutes at 120 fps)")
     s = p.add_argument_group("prior and solver")
     if latent:
         s.add_argument("--method", choices=METHODS, default="ar",
@@ -179,7 +182,7 @@ def check_outputs(args: argparse.Namespace) -> Outputs:
 def load_input(args: argparse.Namespace):
     from motionopt import bvh
 
-    motion = bvh.load(args.input, unit=args.unit, fps=args.fps)
+    motion = bvh.load(args.input, unit=args.unit, fps=args.fps, max_frames=args.max_frames)
     _say(args, f"read {args.input}: {motion.num_frames} frames at {motion.fps:g} fps, "
                f"{motion.skeleton.num_joints} joints, unit {motion.source_unit}")
     return motion
@@ -343,14 +346,7 @@ def finish(args: argparse.Namespace, outs: Outputs, motion, result, prior_path: 
 def _write_json(path: Path, data: dict) -> None:
     """Write JSON through a temporary file, so that an interrupted run leaves no half file."""
     text = json.dumps(data, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, text + "\n")
 
 
 #: How to say a task's metrics: (keys that must all be present, sentence from their values).
