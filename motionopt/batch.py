@@ -89,6 +89,7 @@ class FileResult:
     error: str | None = None
     seconds: float = 0.0
     metrics: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
     output: str | None = None
     report: str | None = None
     output_sha256: str | None = None
@@ -168,6 +169,7 @@ def run_file(job: FileJob, threads: int | None = None) -> FileResult:
         if error is None:
             report = json.loads(job.report.read_text())
             result.status, result.metrics = "ok", _scalars(report.get("metrics", {}))
+            result.warnings = [str(w) for w in report.get("warnings", [])]
             result.output, result.report = str(job.output), str(job.report)
             result.output_sha256 = sha256(job.output)
         else:
@@ -275,14 +277,14 @@ def _drop_partial_last_line(path: Path) -> None:
 # ---- summary ---------------------------------------------------------------------------------------
 
 def write_summary(out_dir: Path, results: list[FileResult]) -> tuple[Path, Path]:
-    """``batch-summary.csv`` (file, status, error, seconds, then one column per metric)
-    and ``batch-summary.json`` (the full records)."""
+    """``batch-summary.csv`` (file, status, error, warnings, seconds, then one column per
+    metric) and ``batch-summary.json`` (the full records)."""
     keys = sorted({k for r in results for k in r.metrics})
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(["file", "status", "error", "seconds", *keys])
+    writer.writerow(["file", "status", "error", "warnings", "seconds", *keys])
     for r in results:
-        writer.writerow([r.file, r.status, r.error or "", f"{r.seconds:.3f}",
+        writer.writerow([r.file, r.status, r.error or "", " | ".join(r.warnings), f"{r.seconds:.3f}",
                          *(_cell(r.metrics.get(k)) for k in keys)])
     csv_path, json_path = out_dir / f"{SUMMARY}.csv", out_dir / f"{SUMMARY}.json"
     write_text_atomic(csv_path, buf.getvalue())

@@ -147,12 +147,12 @@ def contact_labels(positions: np.ndarray | Tensor, contact_idx: list[int], fps: 
     return ((h < height) & (vel < speed)).astype(np.float64)
 
 
-def _yaw(q: Tensor) -> Tensor:
+def heading_angle(q: Tensor) -> Tensor:
     """Twist angle of rotations about the vertical y axis."""
     return 2 * torch.atan2(q[..., 2], q[..., 0])
 
 
-def _wrap(a: Tensor) -> Tensor:
+def wrap_angle(a: Tensor) -> Tensor:
     return torch.atan2(torch.sin(a), torch.cos(a))
 
 
@@ -166,7 +166,7 @@ def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tu
     pos = motion.positions()
     if ground is None:
         ground = estimate_ground(pos, cidx)
-    yaw = _yaw(q[:, 0])
+    yaw = heading_angle(q[:, 0])
     heading = R.yaw_quat(yaw)
     tilt = R.quat_multiply(R.quat_conjugate(heading), q[:, 0])
     delta_world = torch.zeros_like(root)
@@ -174,7 +174,7 @@ def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tu
     prev_heading = torch.cat((heading[:1], heading[:-1]))
     delta_local = R.quat_apply(R.quat_conjugate(prev_heading), delta_world)
     yaw_delta = torch.zeros_like(yaw)
-    yaw_delta[1:] = _wrap(yaw[1:] - yaw[:-1])
+    yaw_delta[1:] = wrap_angle(yaw[1:] - yaw[:-1])
     contacts = contact_labels(pos, cidx, motion.fps, ground, spec.contact_height, spec.contact_speed)
     x = torch.cat(
         (

@@ -73,12 +73,12 @@ def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist")
-    data = _load_plain(path)
+    data = load_plain(path)
     _check_sections(data, path)
     return data
 
 
-def _load_plain(path: Path) -> object:
+def load_plain(path: Path) -> object:
     """``torch.load`` of tensors and plain data only; what it refuses or cannot read, as a CheckpointError."""
     try:
         with warnings.catch_warnings():

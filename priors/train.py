@@ -15,7 +15,7 @@ from tqdm import tqdm
 from motionopt.dataset import MotionDataset
 
 from .ccnet import CCNetConfig, CCNetPrior
-from .checkpoint import atomic_torch_save, save_prior
+from .checkpoint import atomic_torch_save, load_plain, save_prior
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     val_w, val_valid = (dataset.padded_windows("val", config.window, config.window // 2, config.min_clip_frames)
                         if dataset.val else (None, None))
     meta = provenance(dataset, config, metadata)
-    state = torch.load(sp, map_location="cpu", weights_only=False) if sp.exists() else None
+    state = load_plain(sp) if sp.exists() else None
     model = config.model if state is None else resumed_architecture(state, config.model)
     prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, model, meta)
     opt = torch.optim.Adam(prior.parameters(), lr=config.lr)

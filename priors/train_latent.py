@@ -35,7 +35,7 @@ from motionopt.features import RootStart, decode_positions
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm, \
     window_descriptors
 
-from .checkpoint import atomic_torch_save, save_prior
+from .checkpoint import atomic_torch_save, load_plain, save_prior
 from .latent import Discriminator, LatentConfig, LatentPrior
 from .semantic import fit_attribute_directions, fit_style_directions
 from .train import log_path, provenance, start_run, state_path
@@ -350,7 +350,7 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
     meta = provenance(dataset, config, metadata)
     trainer = LatentTrainer(dataset, config, meta)
     if sp.exists():
-        trainer.load_state(torch.load(sp, map_location="cpu", weights_only=False))
+        trainer.load_state(load_plain(sp))
         trainer.prior.metadata.update({k: v for k, v in meta.items() if k != "training_command"})
         log.warning("resuming %s: %s phase, epoch %d", out, trainer.phase, trainer.epoch)
     prior = trainer.prior if trainer.phase is None else trainer.run(out, progress)

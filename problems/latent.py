@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from motionopt.features import RootStart, decode_motion, decode_positions, to_file_motion
+from motionopt import rotations as R
+from motionopt.features import RootStart, decode_motion, decode_positions, heading_angle, to_file_motion, wrap_angle
 from motionopt.inversion import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
 from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior_cached
@@ -96,16 +97,75 @@ class LatentTaskResult:
 
 
 def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
-            metrics: dict | None = None, n_frames: int | None = None) -> LatentTaskResult:
+            metrics: dict | None = None, n_frames: int | None = None,
+            anchor: tuple[Motion, np.ndarray] | None = None) -> LatentTaskResult:
     """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
-    original's rate (default: as many as the features last). The model motion is held one
-    frame longer so that resampling covers the last file frame."""
+    original's rate (default: as many as the features last). ``anchor`` (the input at the
+    model rate, its known frames): take the root's slow motion from it (``anchor_root``).
+    The model motion is held one frame longer so that resampling covers the last file frame."""
     raw = prior.normalizer.denormalize(x.double())
     model = decode_motion(raw, prior.spec, prior.skeleton, start, like=original)
+    if anchor is not None:
+        model = anchor_root(model, *anchor)
     if n_frames is None:
         n_frames = int(round((model.num_frames - 1) * original.fps / model.fps)) + 1
     motion = to_file_motion(hold_last_frame(model, model.num_frames + 1), original)[:n_frames]
     return LatentTaskResult(motion, model, inv, dict(metrics or {}))
+
+
+#: Root drift slower than this (Hz) is taken from the input's root path and heading.
+ROOT_ANCHOR_HZ = 0.5
+
+
+def local_linear_smooth(y: np.ndarray, sigma: float) -> np.ndarray:
+    """``y`` (T, K) smoothed by a Gaussian-weighted local line fit (LOESS of degree 1) of
+    width ``sigma`` frames. Unlike a low-pass filter it reproduces linear trends exactly,
+    up to the clip's ends, so a steady drift is removed whole."""
+    from scipy.ndimage import correlate1d
+
+    r = max(1, int(np.ceil(4 * sigma)))
+    offsets = np.arange(-r, r + 1, dtype=float)
+    g = np.exp(-0.5 * (offsets / sigma) ** 2)
+
+    def window_sum(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        return correlate1d(values, weights, axis=0, mode="constant", cval=0.0)
+
+    ones = np.ones((len(y), 1))
+    m0, m1, m2 = (window_sum(ones, g * offsets ** k) for k in range(3))
+    y0, y1 = window_sum(y, g), window_sum(y, g * offsets)
+    det = m0 * m2 - m1 ** 2
+    slope = np.where(det > 1e-12, (m0 * y1 - m1 * y0) / np.where(det > 1e-12, det, 1.0), 0.0)
+    return (y0 - slope * m1) / m0
+
+
+def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: float = ROOT_ANCHOR_HZ) -> Motion:
+    """``motion`` with the slow part of its root's departure from ``reference`` removed.
+
+    The generator predicts root velocities window by window, so its root path drifts:
+    over 8 s clips the encoder alone lands metres away. Where the input's root is known
+    (``seen`` frames at the model rate), its path and heading are the better estimate of
+    the slow root motion: the differences in heading and position on seen frames, held
+    across unseen ones, are smoothed below ``cutoff_hz`` (``local_linear_smooth``) and
+    added, so the generated motion keeps its own fast root motion (steps, sway) and
+    follows the input's path.
+    """
+    seen = np.asarray(seen, bool)
+    if len(seen) != motion.num_frames or len(reference.root) != motion.num_frames or not seen.any():
+        raise ValueError("anchor_root needs motion, reference and seen of the same length, with a seen frame")
+    t, s = np.arange(motion.num_frames), np.flatnonzero(seen)
+    sigma = np.sqrt(np.log(2)) / (2 * np.pi * cutoff_hz) * motion.fps  # Gaussian half-power at cutoff_hz
+
+    def slow(diff: np.ndarray) -> np.ndarray:
+        held = np.stack([np.interp(t, s, d[s]) for d in np.atleast_2d(diff.T)], axis=-1)
+        return local_linear_smooth(held, sigma)
+
+    root_q = torch.from_numpy(motion.rotations[:, 0])
+    turn = wrap_angle(heading_angle(torch.from_numpy(reference.rotations[:, 0])) - heading_angle(root_q)).numpy()
+    turn = slow(np.unwrap(turn))[:, 0]
+    rotations = motion.rotations.copy()
+    rotations[:, 0] = R.quat_multiply(R.yaw_quat(torch.from_numpy(turn)), root_q).numpy()
+    root = motion.root + slow(reference.root - motion.root)
+    return motion.with_frames(rotations, root, motion.translations)
 
 
 def _model_frame(prior: LatentPrior, motion: Motion, frame: int) -> int:
@@ -118,7 +178,8 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: LatentOptions = Lat
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     inv = invert(prior, prep.x, terms=[term], options=options.inversion())
-    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames)
+    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
+                   anchor=(prep.model, np.ones(len(prep.x), bool)))
 
 
 def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: LatentOptions = LatentOptions(),
@@ -154,7 +215,8 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Latent
         raise ValueError("no frame is seen: give at least one known frame")
     term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
     inv = invert(prior, prep.x, mask=mask, terms=[term], options=options.inversion())
-    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames)
+    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
+                   anchor=(prep.model, mask.numpy()))
 
 
 def hold_last_frame(motion: Motion, n_frames: int) -> Motion:

@@ -19,7 +19,8 @@ from priors.latent import LatentConfig, LatentPrior
 from priors.protocol import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
-from problems.latent import LatentOptions, complete, fuse, infill, reconstruct
+from motionopt.rotations import quat_multiply, yaw_quat
+from problems.latent import LatentOptions, anchor_root, complete, fuse, infill, reconstruct
 
 from priorkit import DATA, cmu_clips, tiny_dataset
 
@@ -208,3 +209,28 @@ def test_commands_write_bvh(trained, tmp_path, capsys):
 def test_config_rejects_bad_window():
     with pytest.raises(ValueError, match="multiple of"):
         replace(LatentConfig(), window=60)
+
+
+def test_anchor_root_removes_slow_drift_and_keeps_fast_motion():
+    clip = bvh.load(cmu_clips()[-1])
+    n = clip.num_frames
+    drift = np.linspace(0.0, 1.0, n)  # 1 m and 0.5 rad of slow drift over the clip
+    turn = torch.from_numpy(0.5 * drift)
+    q = quat_multiply(yaw_quat(turn), torch.from_numpy(clip.rotations[:, 0])).numpy()
+    rotations = clip.rotations.copy()
+    rotations[:, 0] = q
+    drifted = clip.with_frames(rotations, clip.root + drift[:, None] * [1.0, 0.0, -0.5], clip.translations)
+    fixed = anchor_root(drifted, clip, np.ones(n, bool))
+    assert np.abs(fixed.root - clip.root).max() < 0.02 < np.abs(drifted.root - clip.root).max()
+    assert np.allclose(anchor_root(clip, clip, np.ones(n, bool)).root, clip.root)
+    # Only the first half known: the correction measured there is held over the rest.
+    half = anchor_root(drifted, clip, np.arange(n) < n // 2)
+    assert np.abs(half.root[: n // 3] - clip.root[: n // 3]).max() < 0.03
+
+
+def test_encoder_reconstruction_of_a_long_clip_follows_the_input_path(prior):
+    clip = bvh.load(cmu_clips()[-1])
+    assert clip.num_frames * prior.spec.fps / clip.fps > 2 * prior.window  # several windows
+    out = reconstruct(prior, clip, LatentOptions()).motion
+    root_error = np.linalg.norm(out.root[:, [0, 2]] - clip.root[:, [0, 2]], axis=-1)
+    assert root_error.mean() < 0.1
