@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy.signal import butter, filtfilt
 
 from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
+from motionopt.smoothing import butterworth, denoising_family, least_risk
 from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import SolverOptions
 
@@ -38,45 +38,31 @@ def estimate_noise(motion: Motion) -> tuple[float, float]:
     return float(2 * _D4 * np.median(np.abs(d4q))), float(_D4 * np.median(np.abs(d4r)))
 
 
-def _smoother(n: int, cutoff_hz: float, fps: float) -> np.ndarray:
-    """The (n, n) matrix of a zero-phase Butterworth low-pass (filtfilt) of order 2: its
-    gentler roll-off than order 4 suits motion spectra, which fade out gradually (lower
-    error on training clips at 1-5 cm of noise)."""
-    b, a = butter(2, min(cutoff_hz / (fps / 2), 0.99))
-    return filtfilt(b, a, np.eye(n), axis=0)
-
-
-def choose_cutoff(y: np.ndarray, sigma: float, fps: float, candidates: np.ndarray) -> float:
-    """The cutoff (Hz) of the candidates with the least Stein unbiased risk estimate for
-    signals ``y`` (T, K) carrying white noise of std ``sigma``:
-    |y - S y|^2 - T K sigma^2 + 2 sigma^2 K tr(S), no clean signal needed."""
-    n, k = y.shape
-    risks = []
-    for fc in candidates:
-        s = _smoother(n, fc, fps)
-        risks.append(((y - s @ y) ** 2).sum() - n * k * sigma ** 2 + 2 * sigma ** 2 * k * np.trace(s))
-    return float(candidates[int(np.argmin(risks))])
-
-
 def low_pass(motion: Motion, cutoff_hz: float | None = None, angle_sigma: float = 0.01,
-             root_sigma: float = 0.01) -> Motion:
-    """Zero-phase Butterworth low-pass (``_smoother``) of rotations (aligned quaternions,
-    renormalised) and root positions. With ``cutoff_hz`` None each joint (and the root)
-    gets its own cutoff in 1-12 Hz, the one of least estimated risk for its noise level
-    (``choose_cutoff``): fast limbs keep more bandwidth than a slow spine."""
+             root_sigma: float = 0.01) -> tuple[Motion, dict[str, str]]:
+    """Zero-phase smoothing of rotations (aligned quaternions, renormalised) and root
+    positions, and the smoother used for each joint (by name; "root" for the position).
+    With ``cutoff_hz`` None each joint (and the root) gets the smoother of least estimated
+    risk for its noise level (``smoothing.least_risk`` over ``denoising_family``): fast
+    limbs keep more bandwidth than a slow spine. Else all get a Butterworth low-pass at
+    ``cutoff_hz``."""
     n = motion.num_frames
     if n <= 15:
-        return motion
+        return motion, {}
     q = aligned_quaternions(motion.rotations)
-    fps = motion.fps
-    grid = np.arange(1.0, 12.01, 0.5)
+    if cutoff_hz is None:
+        family = denoising_family(motion.fps)
+        per_joint = least_risk(q[..., 1:], angle_sigma / 2, family)
+        (root_smoother,) = least_risk(motion.root[:, None], max(root_sigma, 1e-6), family)
+    else:
+        root_smoother = butterworth(cutoff_hz, motion.fps)
+        per_joint = [root_smoother] * q.shape[1]
     out_q = np.empty_like(q)
-    for j in range(q.shape[1]):
-        fc = cutoff_hz or choose_cutoff(q[:, j, 1:], angle_sigma / 2, fps, grid)
-        out_q[:, j] = _smoother(n, fc, fps) @ q[:, j]
+    for j, smoother in enumerate(per_joint):
+        out_q[:, j] = smoother.apply(q[:, j])
     out_q /= np.linalg.norm(out_q, axis=-1, keepdims=True)
-    fc = cutoff_hz or choose_cutoff(motion.root, max(root_sigma, 1e-6), fps, grid)
-    return motion.with_frames(out_q, _smoother(n, fc, fps) @ motion.root, motion.translations)
+    chosen = dict(zip(motion.skeleton.names, (s.label for s in per_joint)), root=root_smoother.label)
+    return motion.with_frames(out_q, root_smoother.apply(motion.root), motion.translations), chosen
 
 
 @dataclass
@@ -84,8 +70,9 @@ class Denoise:
     """Remove capture noise from ``motion``.
 
     The noise level is estimated from the clip's high-frequency energy
-    (``estimate_noise``); each joint is low-pass filtered at the cutoff of least
-    estimated risk for that level (``low_pass``; ``cutoff_hz`` forces one cutoff for all).
+    (``estimate_noise``); each joint is smoothed by the Butterworth or Savitzky-Golay
+    filter of least estimated risk for that level (``low_pass``; ``cutoff_hz`` forces one
+    Butterworth cutoff for all).
     With ``clean_feet`` the foot contacts the prior predicts are then planted by leg IK:
     no sliding, at a cost in fidelity (the IK moves planted feet to where they stand on
     average, centimetres on real captures), so it is off by default.
@@ -124,7 +111,8 @@ class Denoise:
         est_angle, est_root = estimate_noise(prep.model) if n > 8 else (0.01, 0.01)
         sigma_angle = self.sigma_angle or max(est_angle, 1e-3)
         sigma_root = self.sigma_root or max(est_root, 1e-3)
-        start = prepare(low_pass(prep.model, self.cutoff_hz, sigma_angle, est_root), prior)
+        smoothed, smoothers = low_pass(prep.model, self.cutoff_hz, sigma_angle, est_root)
+        start = prepare(smoothed, prior)
         model, x, result = start.model, start.x, None
         if self.refine:
             fidelity = PoseFidelityTerm(prep.model.root, prep.model.rotations, sigma_root, sigma_angle,
@@ -149,4 +137,5 @@ class Denoise:
         }
         return TaskResult(back_to_file(model, prep), model, result, metrics,
                           {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz, "refine": self.refine,
-                           "estimated_angle_noise": est_angle, "estimated_root_noise": est_root})
+                           "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
+                           "smoothers": smoothers})

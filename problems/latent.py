@@ -20,6 +20,7 @@ from motionopt import rotations as R
 from motionopt.features import RootStart, decode_motion, decode_positions, heading_angle, to_file_motion, wrap_angle
 from motionopt.inversion import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
+from motionopt.smoothing import local_linear
 from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior_cached
 from priors.latent import LatentPrior
 from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
@@ -117,27 +118,6 @@ def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, i
 ROOT_ANCHOR_HZ = 0.5
 
 
-def local_linear_smooth(y: np.ndarray, sigma: float) -> np.ndarray:
-    """``y`` (T, K) smoothed by a Gaussian-weighted local line fit (LOESS of degree 1) of
-    width ``sigma`` frames. Unlike a low-pass filter it reproduces linear trends exactly,
-    up to the clip's ends, so a steady drift is removed whole."""
-    from scipy.ndimage import correlate1d
-
-    r = max(1, int(np.ceil(4 * sigma)))
-    offsets = np.arange(-r, r + 1, dtype=float)
-    g = np.exp(-0.5 * (offsets / sigma) ** 2)
-
-    def window_sum(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        return correlate1d(values, weights, axis=0, mode="constant", cval=0.0)
-
-    ones = np.ones((len(y), 1))
-    m0, m1, m2 = (window_sum(ones, g * offsets ** k) for k in range(3))
-    y0, y1 = window_sum(y, g), window_sum(y, g * offsets)
-    det = m0 * m2 - m1 ** 2
-    slope = np.where(det > 1e-12, (m0 * y1 - m1 * y0) / np.where(det > 1e-12, det, 1.0), 0.0)
-    return (y0 - slope * m1) / m0
-
-
 def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: float = ROOT_ANCHOR_HZ) -> Motion:
     """``motion`` with the slow part of its root's departure from ``reference`` removed.
 
@@ -145,7 +125,7 @@ def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: 
     over 8 s clips the encoder alone lands metres away. Where the input's root is known
     (``seen`` frames at the model rate), its path and heading are the better estimate of
     the slow root motion: the differences in heading and position on seen frames, held
-    across unseen ones, are smoothed below ``cutoff_hz`` (``local_linear_smooth``) and
+    across unseen ones, are smoothed below ``cutoff_hz`` (``local_linear``) and
     added, so the generated motion keeps its own fast root motion (steps, sway) and
     follows the input's path.
     """
@@ -157,7 +137,7 @@ def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: 
 
     def slow(diff: np.ndarray) -> np.ndarray:
         held = np.stack([np.interp(t, s, d[s]) for d in np.atleast_2d(diff.T)], axis=-1)
-        return local_linear_smooth(held, sigma)
+        return local_linear(held, sigma)
 
     root_q = torch.from_numpy(motion.rotations[:, 0])
     turn = wrap_angle(heading_angle(torch.from_numpy(reference.rotations[:, 0])) - heading_angle(root_q)).numpy()

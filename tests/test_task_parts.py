@@ -13,7 +13,8 @@ from motionopt import rotations as R
 from motionopt.features import decode, encode, to_model_motion
 from motionopt.metrics import l2p, l2q, npss
 from problems.common import clamped_rollout, root_features
-from problems.denoise import choose_cutoff, estimate_noise, low_pass
+from motionopt.smoothing import butterworth, denoising_family, least_risk, savitzky_golay
+from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
 
 from priorkit import tiny_prior
@@ -69,19 +70,27 @@ def test_per_joint_low_pass_brings_a_noisy_clip_nearer_the_clean_one(walk):
     _, m = walk
     nz = noisy(m, 0.03)
     clean, before = m.positions(), nz.positions()
-    after = low_pass(nz, None, *estimate_noise(nz)).positions()
+    smoothed, chosen = low_pass(nz, None, *estimate_noise(nz))
     err = lambda p: np.linalg.norm(p - clean, axis=-1).mean()  # noqa: E731
-    assert err(after) < 0.7 * err(before)
+    assert err(smoothed.positions()) < 0.7 * err(before)
+    assert set(chosen) == {*m.skeleton.names, "root"}
 
 
-def test_risk_picks_a_lower_cutoff_for_more_noise():
+def test_risk_picks_more_smoothing_for_more_noise():
     t = np.arange(120) / 30.0
-    signal = np.sin(2 * np.pi * 1.5 * t)[:, None]
+    signal = np.sin(2 * np.pi * 1.5 * t)[:, None, None]
     rng = np.random.default_rng(0)
-    grid = np.arange(1.0, 12.01, 0.5)
-    low = choose_cutoff(signal + 0.02 * rng.standard_normal(signal.shape), 0.02, 30.0, grid)
-    high = choose_cutoff(signal + 0.3 * rng.standard_normal(signal.shape), 0.3, 30.0, grid)
-    assert high < low
+    family = denoising_family(30.0)
+    (low,) = least_risk(signal + 0.02 * rng.standard_normal(signal.shape), 0.02, family)
+    (high,) = least_risk(signal + 0.3 * rng.standard_normal(signal.shape), 0.3, family)
+    assert high.trace(120) < low.trace(120)
+
+
+@pytest.mark.parametrize("smoother", [butterworth(4.0, 30.0), savitzky_golay(11, 3)], ids=lambda s: s.label)
+@pytest.mark.parametrize("n", [40, 700])
+def test_smoother_trace_matches_its_matrix(smoother, n):
+    """The trace from a short matrix equals the full one, also for clips longer than it."""
+    assert smoother.trace(n) == pytest.approx(np.trace(smoother.apply(np.eye(n))), rel=1e-9)
 
 
 def test_reach_meets_a_target_with_the_limb_above_the_joint(walk):

@@ -1,0 +1,99 @@
+"""Zero-phase linear smoothers along time, and the choice among them by estimated risk.
+
+Denoising picks, for each joint, the smoother of least Stein unbiased risk estimate
+(SURE) for the clip's noise level, from a family of Butterworth low-passes and
+Savitzky-Golay filters: no clean signal is needed, and since each is linear the risk
+needs only its output and the trace of its matrix. Smoothers act on (T, K) arrays in
+O(T): no (T, T) matrix is formed, so hour-long captures cost memory in proportion.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.ndimage import correlate1d
+from scipy.signal import butter, filtfilt, savgol_filter
+
+#: Frames at each end of a clip where a smoother's matrix differs from its interior.
+_EDGE = 256
+
+
+@dataclass(frozen=True)
+class Smoother:
+    """A linear, time-invariant (away from the ends) smoother of (T, K) arrays."""
+
+    label: str
+    apply: Callable[[np.ndarray], np.ndarray]
+    min_frames: int
+
+    def trace(self, n: int) -> float:
+        """Trace of its (n, n) matrix (effective degrees of freedom): exact, from a
+        matrix of at most ``2 * _EDGE`` frames whose middle diagonal fills the interior."""
+        return _trace(self, n)
+
+
+@lru_cache(maxsize=4096)
+def _trace(smoother: Smoother, n: int) -> float:
+    m = min(n, 2 * _EDGE)
+    s = smoother.apply(np.eye(m))
+    return float(np.trace(s) + (n - m) * s[m // 2, m // 2])
+
+
+def butterworth(cutoff_hz: float, fps: float, order: int = 2) -> Smoother:
+    """Zero-phase (forward-backward) Butterworth low-pass; order 2's gentle roll-off suits
+    motion spectra, which fade out gradually."""
+    b, a = butter(order, min(cutoff_hz / (fps / 2), 0.99))
+    pad = 3 * max(len(a), len(b))
+    return Smoother(f"Butterworth {cutoff_hz:g} Hz", lambda y: np.ascontiguousarray(filtfilt(b, a, y, axis=0)), pad + 1)
+
+
+def savitzky_golay(window: int, order: int) -> Smoother:
+    """Local polynomial fit of ``order`` over ``window`` frames (odd); keeps peaks that a
+    low-pass of the same smoothing would flatten."""
+    return Smoother(f"Savitzky-Golay {window} frames, order {order}",
+                    lambda y: savgol_filter(y, window, order, axis=0), window)
+
+
+@lru_cache(maxsize=16)
+def denoising_family(fps: float) -> tuple[Smoother, ...]:
+    """Butterworth order 2 at 1-12 Hz and Savitzky-Golay filters of orders 2-5 over
+    0.15-2 s: the candidates each joint chooses from. The mix beats either kind alone
+    on held-out clips at 1-5 cm of noise (bench/tasks.py)."""
+    lows = [butterworth(fc, fps) for fc in np.arange(1.0, 12.01, 0.5)]
+    windows = range(max(5, 2 * int(0.075 * fps) + 1), 2 * int(fps) + 2, 2)
+    fits = [savitzky_golay(w, o) for w in windows for o in (2, 3, 4, 5) if o < w - 1]
+    return tuple(lows + fits)
+
+
+def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[Smoother]) -> list[Smoother]:
+    """For each column group of ``y`` (T, G, K) carrying white noise of std ``sigma``,
+    the smoother of least SURE: |y - S y|^2 + 2 sigma^2 K tr(S) (plus a constant)."""
+    n, groups, k = y.shape
+    flat = y.reshape(n, groups * k)
+    usable = [s for s in family if n >= s.min_frames]
+    if not usable:
+        raise ValueError(f"no smoother of the family fits a clip of {n} frames")
+    risks = np.stack([((flat - s.apply(flat)) ** 2).reshape(n, groups, k).sum(axis=(0, 2))
+                      + 2 * sigma ** 2 * k * s.trace(n) for s in usable])
+    return [usable[i] for i in risks.argmin(axis=0)]
+
+
+def local_linear(y: np.ndarray, sigma: float) -> np.ndarray:
+    """``y`` (T, K) smoothed by a Gaussian-weighted local line fit (LOESS of degree 1) of
+    width ``sigma`` frames. Unlike a low-pass filter it reproduces linear trends exactly,
+    up to the clip's ends, so a steady drift is removed whole."""
+    r = max(1, int(np.ceil(4 * sigma)))
+    offsets = np.arange(-r, r + 1, dtype=float)
+    g = np.exp(-0.5 * (offsets / sigma) ** 2)
+
+    def window_sum(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        return correlate1d(values, weights, axis=0, mode="constant", cval=0.0)
+
+    ones = np.ones((len(y), 1))
+    m0, m1, m2 = (window_sum(ones, g * offsets ** k) for k in range(3))
+    y0, y1 = window_sum(y, g), window_sum(y, g * offsets)
+    det = m0 * m2 - m1 ** 2
+    slope = np.where(det > 1e-12, (m0 * y1 - m1 * y0) / np.where(det > 1e-12, det, 1.0), 0.0)
+    return (y0 - slope * m1) / m0
