@@ -239,6 +239,45 @@ def decode_motion(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootS
                   source_unit=like.source_unit if like is not None else "m")
 
 
+def contact_heights(x: Tensor, spec: FeatureSpec, skeleton: Skeleton) -> Tensor:
+    """Height above the ground (..., T, C) of each contact joint in unnormalised frames ``x``."""
+    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    return decode_positions(x, spec, skeleton)[..., cidx, 1]
+
+
+def planted_root_step(prev: Tensor, new: Tensor, spec: FeatureSpec, skeleton: Skeleton,
+                      rest: Tensor | None = None) -> Tensor:
+    """``new`` (unnormalised frames (B, D) following ``prev`` (B, D)) with its root step on
+    the ground plane replaced, where contact joints are planted in both frames, by the
+    step that keeps them still: the root moves under the planted foot instead of the foot
+    sliding under the body. Frames with no planted joint are returned as they were.
+
+    A joint is planted where the contact channels of both frames say so or, given its
+    resting height above the ground ``rest`` (B, C), where it is within the spec's
+    contact height of it in both frames. The step is found in the previous frame's
+    heading frame, where a joint at body position p then at p' (turned by the yaw
+    change) stays still when the root moves by p - p'; with several planted joints,
+    the mean of theirs."""
+    s = spec.slices()
+    both = torch.stack((prev, new), dim=-2).clone()
+    both[..., s["root_delta"]] = 0.0
+    both[..., s["yaw_delta"]] = 0.0
+    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    body = decode_positions(both, spec, skeleton)[..., cidx, :]  # (B, 2, C, 3), each in its own heading frame
+    turn = R.yaw_quat(new[..., s["yaw_delta"]].expand(*new.shape[:-1], len(cidx)))
+    need = (body[..., 0, :, :] - R.quat_apply(turn, body[..., 1, :, :]))[..., [0, 2]]
+    planted = (prev[..., s["contacts"]] > 0.5) & (new[..., s["contacts"]] > 0.5)
+    if rest is not None:
+        low = body[..., 1] - rest[..., None, :] < spec.contact_height  # (B, 2, C)
+        planted = planted | (low[..., 0, :] & low[..., 1, :])
+    planted = planted.to(new.dtype)
+    count = planted.sum(-1, keepdim=True)
+    step = (need * planted[..., None]).sum(-2) / count.clamp_min(1.0)
+    out = new.clone()
+    out[..., s["root_delta"]] = torch.where(count > 0, step, new[..., s["root_delta"]])
+    return out
+
+
 def advance(start: RootStart, x: Tensor, spec: FeatureSpec) -> RootStart:
     """The root state after the (unnormalised) frames ``x (T, D)``, continuing from ``start``:
     what decoding the next frames continues from."""

@@ -189,7 +189,8 @@ def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, chann
     rf = prior.receptive_field
     out = []
     for t in range(len(clamp)):
-        nxt = prior.sample(frames[..., -rf:, :], 1, generator=generator, temperature=temperature)[..., 0, :]
+        nxt = prior.sample(frames[..., -rf:, :], 1, generator=generator, temperature=temperature,
+                           plant=False)[..., 0, :]
         nxt[..., channels] = clamp[t]
         out.append(nxt)
         frames = torch.cat((frames[..., -rf + 1:, :], nxt[..., None, :]), dim=-2)

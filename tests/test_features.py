@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from motionopt import bvh
-from motionopt.features import (FeatureSpec, contact_labels, decode, decode_positions, default_spec, encode,
-                                estimate_ground, to_model_motion)
+from motionopt.features import (FeatureSpec, contact_heights, contact_labels, decode, decode_positions, default_spec, encode,
+                                estimate_ground, planted_root_step, to_model_motion)
 
 DATA = Path(__file__).parent / "data"
 MARTIAL = DATA / "cmu-martial-03-step.bvh"
@@ -133,3 +133,30 @@ def test_contact_thresholds_are_parameters_that_change_labels():
     strict = replace(spec, contact_height=0.005, contact_speed=0.1)
     x_strict, _ = encode(model, strict)
     assert x_strict[:, strict.slices()["contacts"]].sum() < default.sum()
+
+
+@pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
+def test_planted_root_step_holds_the_planted_joint_still(path):
+    """A root step pushed off by 10 cm is replaced by the one that keeps the single
+    planted contact joint still on the ground plane; unplanted frames keep theirs."""
+    _, spec, model, x, start = encoded(path)
+    s = spec.slices()
+    x = x.clone()
+    x[:, s["contacts"]] = 0.0
+    x[:, s["contacts"].start] = 1.0  # only the first contact joint planted, in every frame
+    j = spec.joints.index(spec.contact_joints[0])
+    t = len(x) // 2
+    pushed = x[t].clone()
+    pushed[s["root_delta"]] += 0.1
+    fixed = planted_root_step(x[t - 1:t], pushed[None], spec, model.skeleton)[0]
+    y = x[:t + 1].clone()
+    y[t] = fixed
+    pos = decode_positions(y, spec, model.skeleton, start)
+    assert torch.linalg.norm(pos[t, j, [0, 2]] - pos[t - 1, j, [0, 2]]) < 1e-4
+    x[t - 1:t + 1, s["contacts"]] = 0.0
+    assert torch.equal(planted_root_step(x[t - 1:t], pushed[None], spec, model.skeleton)[0], pushed)
+    # no contact flags, but the first contact joint low above its resting height: planted too
+    rest = torch.full((1, len(spec.contact_joints)), -10.0, dtype=x.dtype)  # the others far above theirs
+    rest[0, 0] = contact_heights(x[t - 1:t + 1], spec, model.skeleton)[:, 0].max() - 0.01
+    fixed = planted_root_step(x[t - 1:t], pushed[None], spec, model.skeleton, rest)[0]
+    assert torch.allclose(fixed[s["root_delta"]], y[t, s["root_delta"]], atol=1e-6)

@@ -12,8 +12,8 @@ from motionopt import bvh
 from motionopt import rotations as R
 from motionopt.features import decode, encode, to_model_motion
 from motionopt.metrics import l2p, l2q, npss
-from problems.common import clamped_rollout, root_features
 from motionopt.smoothing import butterworth, denoising_family, least_risk, savitzky_golay
+from problems.common import clamped_rollout, root_features
 from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
 
@@ -117,3 +117,4 @@ def test_inbetweening_metrics_are_zero_on_the_truth_and_grow_with_the_error():
     assert float(npss(seq, seq)) < 1e-6
     jitter = seq + 0.3 * torch.randn(1, 30, 4, generator=g)
     assert float(npss(jitter, seq)) > 0.01
+
