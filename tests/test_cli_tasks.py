@@ -14,7 +14,7 @@ import torch
 from motionopt import bvh
 from motionopt.rotations import axis_angle_to_quat, quat_multiply
 from motionopt.cli import main
-from motionopt.metrics import jerk
+from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
 from motionopt.plot import body_root
 from priors.checkpoint import CHECKPOINT_DIR
@@ -154,6 +154,23 @@ def test_complete_keeps_the_prefix_and_is_silent_with_quiet(capsys, clips, tmp_p
     # (longer than the input) carries no angle-wrapping hint from it
     np.testing.assert_allclose(bvh.load(out).positions()[:30], bvh.load(clips["salsa"]).positions()[:30], atol=1e-6)
     assert json.loads(report.read_text())["settings"]["frames"] == 90
+
+
+def test_complete_with_clean_feet_slides_less(capsys, clips, tmp_path):
+    needs("bandai-locomotion-ccnet.pt")
+    skating = {}
+    for flag in ([], ["--clean-feet"]):
+        out, report = tmp_path / f"out{len(flag)}.bvh", tmp_path / f"r{len(flag)}.json"
+        rc, _, err = run(capsys, "complete", clips["walk"], "--prefix", 10, "--frames", 30, "--out", out,
+                         "--report", report, "--quiet", *flag)
+        assert rc == 0, err
+        after = bvh.load(out)
+        cidx = [after.skeleton.names.index(n) for n in ("Foot_L", "Foot_R")]
+        skating[bool(flag)] = float(foot_skating(torch.from_numpy(after.positions()[10:]), after.fps, cidx))
+    assert skating[True] < skating[False]
+    rc, _, err = run(capsys, "complete", clips["walk"], "--prefix", 10, "--frames", 30, "--out", tmp_path / "l.bvh",
+                     "--method", "latent", "--clean-feet")
+    assert rc != 0 and "--clean-feet works with --method ar only" in err
 
 
 def test_edit_moves_the_joint_toward_its_target(capsys, clips, tmp_path):

@@ -48,11 +48,13 @@ def register(sub) -> None:
 
     p = sub.add_parser(
         "denoise", help="clean captured motion: remove jitter, foot sliding and ground penetration",
-        description="Estimate the capture noise in the clip and low-pass filter each joint at the cutoff of "
-        "least estimated risk for it. --refine then adds the MAP solve: fidelity to the input's root and joint "
+        description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
+        "Savitzky-Golay filter of least estimated risk for it. --clean-feet then plants the feet by leg IK. "
+        "--refine then adds the MAP solve: fidelity to the input's root and joint "
         "angles, the prior and contact terms. --plot draws a foot's trajectory before and after.")
     p.add_argument("input", metavar="INPUT.bvh", help="motion to clean")
     _add_task_options(p, latent=True, new_frames=False)
+    _add_clean_feet(p)
     p.set_defaults(func=cmd_denoise)
 
     p = sub.add_parser(
@@ -64,6 +66,7 @@ def register(sub) -> None:
                    help="half-open frame ranges to keep, like Python slices, e.g. 0:30,60:90 (frames 0-29 and "
                    "60-89 of INPUT.bvh); the first range must start at 0")
     _add_task_options(p, latent=True, new_frames=True)
+    _add_clean_feet(p)
     p.set_defaults(func=cmd_inbetween)
 
     p = sub.add_parser(
@@ -76,6 +79,7 @@ def register(sub) -> None:
     p.add_argument("--frames", required=True, type=_positive(int), metavar="N",
                    help="frames of the output, prefix included")
     _add_task_options(p, latent=True, new_frames=True)
+    _add_clean_feet(p)
     p.set_defaults(func=cmd_complete)
 
     p = sub.add_parser(
@@ -98,6 +102,17 @@ def _positive(kind: type) -> Callable[[str], float | int]:
         return value
     parse.__name__ = kind.__name__  # argparse names the type in its messages
     return parse
+
+
+def _add_clean_feet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--clean-feet", action="store_true",
+                   help="plant the feet the prior finds in contact by leg IK: no sliding, at a cost of "
+                   "centimetres in fidelity (not with --method latent)")
+
+
+def _no_clean_feet_with_latent(args: argparse.Namespace) -> None:
+    if args.method == "latent" and args.clean_feet:
+        raise UserError("--clean-feet works with --method ar only")
 
 
 def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool) -> None:
@@ -433,6 +448,7 @@ def cmd_denoise(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     outs = check_outputs(args)
+    _no_clean_feet_with_latent(args)
     motion = load_input(args)
     if args.method == "latent":
         from problems.latent import reconstruct
@@ -445,7 +461,8 @@ def cmd_denoise(args: argparse.Namespace) -> int:
 
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
-        task = Denoise(motion, prior, options=solver_options(args, Denoise, progress), refine=args.refine)
+        task = Denoise(motion, prior, options=solver_options(args, Denoise, progress), refine=args.refine,
+                       clean_feet=args.clean_feet)
         result = solve(args, task.solve, progress)
     foot = prior.spec.contact_joints[0]
     return finish(args, outs, motion, result, prior_path, started, lambda out: plot.plot_joint_trajectories(
@@ -457,6 +474,7 @@ def cmd_inbetween(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     outs = check_outputs(args)
+    _no_clean_feet_with_latent(args)
     motion = load_input(args)
     keep = check_ranges(parse_ranges(args.keep), motion.num_frames)
     if args.method == "latent":
@@ -475,7 +493,8 @@ def cmd_inbetween(args: argparse.Namespace) -> int:
 
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
-        task = Inbetween(motion, keep, prior, options=solver_options(args, Inbetween, progress), refine=args.refine)
+        task = Inbetween(motion, keep, prior, options=solver_options(args, Inbetween, progress), refine=args.refine,
+                         clean_feet=args.clean_feet)
         result = solve(args, task.solve, progress)
     return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
 
@@ -483,6 +502,7 @@ def cmd_inbetween(args: argparse.Namespace) -> int:
 def cmd_complete(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     outs = check_outputs(args)
+    _no_clean_feet_with_latent(args)
     motion = load_input(args)
     if args.method == "latent":
         from problems.latent import complete
@@ -496,7 +516,8 @@ def cmd_complete(args: argparse.Namespace) -> int:
         prior, prior_path = load_ar_prior(motion, args)
         progress = WindowProgress(args)
         task = complete(motion, args.prefix, args.frames, prior,
-                        options=solver_options(args, Inbetween, progress), refine=args.refine)
+                        options=solver_options(args, Inbetween, progress), refine=args.refine,
+                        clean_feet=args.clean_feet)
         result = solve(args, task.solve, progress)
     return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
 
