@@ -175,6 +175,8 @@ class Inbetween:
         raw = prior.normalizer.denormalize(new.double())
         m = decode_motion(raw, prior.spec, prep.model.skeleton, start)
         q, r = m.rotations, m.root
+        if b is not None and a >= 2:
+            q = velocity_handoff(q, rot[a - 2:a], prior.spec.fps)
         if b is not None:
             w = np.arange(1, len(q) + 1) / len(q)
             w = w * w * (3 - 2 * w)
@@ -186,6 +188,26 @@ class Inbetween:
             r = r + w[:, None] * (prep.model.root[b] - r[-1])
             q, r = q[:-1], r[:-1]
         rot[a:a + len(q)], root[a:a + len(q)] = q, r
+
+
+#: Seconds over which a gap's first frames hand over from the kept frames' joint velocities to the prior.
+HANDOFF_SECONDS = 0.25
+
+
+def velocity_handoff(q: np.ndarray, q_before: np.ndarray, fps: float, seconds: float = HANDOFF_SECONDS) -> np.ndarray:
+    """Synthesised rotations ``q`` (K, J, 4) that start as the two frames before them
+    (``q_before`` (2, J, 4)) continued at constant angular velocity and fade into the
+    prior's own over ``seconds`` (smoothstep weights): the gap leaves the kept frames
+    without a change of joint velocity, which the prior's first step does not quite keep."""
+    k = np.arange(1, len(q) + 1)
+    u = 1 - np.clip((k - 1) / max(seconds * fps, 1e-9), 0.0, 1.0)
+    u = u * u * (3 - 2 * u)
+    q0, q1 = torch.from_numpy(q_before[0]), torch.from_numpy(q_before[1])
+    step = R.quat_to_axis_angle(R.quat_multiply(R.quat_conjugate(q0), q1))
+    steady = R.quat_multiply(q1.expand(len(k), *q1.shape),
+                             R.axis_angle_to_quat(torch.from_numpy(k)[:, None, None] * step))
+    weights = torch.from_numpy(np.broadcast_to(u[:, None], q.shape[:2]).copy())
+    return R.quat_slerp(torch.from_numpy(q), steady, weights).numpy()
 
 
 def _gaps(kept: np.ndarray) -> list[tuple[int, int]]:

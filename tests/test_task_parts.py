@@ -16,6 +16,7 @@ from motionopt.smoothing import butterworth, denoising_family, least_risk, savit
 from problems.common import clamped_rollout, root_features
 from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
+from problems.inbetween import velocity_handoff
 
 from priorkit import tiny_prior
 
@@ -118,3 +119,18 @@ def test_inbetweening_metrics_are_zero_on_the_truth_and_grow_with_the_error():
     jitter = seq + 0.3 * torch.randn(1, 30, 4, generator=g)
     assert float(npss(jitter, seq)) > 0.01
 
+
+def test_velocity_handoff_continues_the_kept_joint_velocities_then_leaves_the_prior_alone(walk):
+    """Frame 1 of a gap is the last kept frames' constant-velocity step; after the hand-off
+    the synthesised rotations are untouched."""
+    _, m = walk
+    a, k = 20, 30
+    before = m.rotations[a - 2:a]
+    synth = m.rotations[a + 5:a + 5 + k]  # a jump away from the kept frames
+    q = velocity_handoff(synth, before, m.fps, seconds=0.25)
+    step = R.quat_multiply(R.quat_conjugate(torch.from_numpy(before[0])), torch.from_numpy(before[1]))
+    expected = R.quat_multiply(torch.from_numpy(before[1]), step).numpy()
+    assert np.allclose(np.abs((q[0] * expected).sum(-1)), 1.0, atol=1e-6)
+    after = int(np.ceil(0.25 * m.fps)) + 1
+    assert np.allclose(np.abs((q[after:] * synth[after:]).sum(-1)), 1.0)
+    assert not np.allclose(np.abs((q[1:after - 1] * synth[1:after - 1]).sum(-1)), 1.0)
