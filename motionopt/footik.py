@@ -19,6 +19,7 @@ from .kinematics import fk
 from .metrics import rest_heights
 from .motion import Motion
 from .skeleton import Skeleton
+from .smoothing import smoothstep
 
 _STRAIGHT = 1e-3  # sine of the knee angle below which a leg counts as straight
 
@@ -169,11 +170,6 @@ def _segments(on: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3 - 2 * x)
-
-
 def _filled(on: np.ndarray, gap: int) -> np.ndarray:
     """``on`` with runs of at most ``gap`` False frames between True frames set True."""
     out = on.copy()
@@ -209,8 +205,8 @@ def _corrections(p: np.ndarray, labels: np.ndarray, heights: np.ndarray, hip: np
     frames = np.arange(n_t)
     last = np.maximum.accumulate(np.where(inside, frames, -1))
     after = np.minimum.accumulate(np.where(inside, frames, n_t)[::-1])[::-1]
-    a = np.where(last >= 0, _smoothstep(1 - (frames - last) / (blend + 1)), 0.0)
-    b = np.where(after < n_t, _smoothstep(1 - (after - frames) / (blend + 1)), 0.0)
+    a = np.where(last >= 0, smoothstep(1 - (frames - last) / (blend + 1)), 0.0)
+    b = np.where(after < n_t, smoothstep(1 - (after - frames) / (blend + 1)), 0.0)
     outside = ~inside
     blended = a[:, None] * delta[np.maximum(last, 0)] + b[:, None] * delta[np.minimum(after, n_t - 1)]
     blended /= np.maximum(a + b, 1.0)[:, None]

@@ -80,6 +80,13 @@ def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[
     return [usable[i] for i in risks.argmin(axis=0)]
 
 
+def smoothstep(x: np.ndarray) -> np.ndarray:
+    """3x^2 - 2x^3 of ``x`` clipped to [0, 1]: blend weights that leave 0 and reach 1
+    with zero slope, so a correction faded in by them adds no jump in velocity."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
 def local_linear(y: np.ndarray, sigma: float) -> np.ndarray:
     """``y`` (T, K) smoothed by a Gaussian-weighted local line fit (LOESS of degree 1) of
     width ``sigma`` frames. Unlike a low-pass filter it reproduces linear trends exactly,

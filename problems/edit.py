@@ -14,6 +14,7 @@ from motionopt import rotations as R
 from motionopt.kinematics import fk
 from motionopt.motion import Motion
 from motionopt.objective import JointPositionTerm, PoseFidelityTerm
+from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
@@ -280,8 +281,7 @@ class SpatialEdit:
             hi = np.minimum(lo + 1, len(frames) - 1)
             a = (between - lo)[:, None, None]
             turn = np.where(inside[:, None, None], (1 - a) * turns[lo] + a * turns[hi], turns[nearest])
-            w = np.where(inside, 1.0, np.clip(1 - dist / (fade + 1), 0, 1))
-            w = w * w * (3 - 2 * w)
+            w = smoothstep(np.where(inside, 1.0, 1 - dist / (fade + 1)))
             q = R.quat_multiply(torch.from_numpy(out), R.axis_angle_to_quat(torch.from_numpy(turn * w[:, None, None])))
             out = q.numpy()
         return out

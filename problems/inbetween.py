@@ -11,6 +11,7 @@ from motionopt import rotations as R
 from motionopt.features import RootStart, decode_motion
 from motionopt.motion import Motion
 from motionopt.objective import PoseFidelityTerm
+from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 
 from .common import (MAX_HUMAN_SPEED, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of,
@@ -175,11 +176,10 @@ class Inbetween:
         raw = prior.normalizer.denormalize(new.double())
         m = decode_motion(raw, prior.spec, prep.model.skeleton, start)
         q, r = m.rotations, m.root
-        if b is not None and a >= 2:
-            q = velocity_handoff(q, rot[a - 2:a], prior.spec.fps)
         if b is not None:
-            w = np.arange(1, len(q) + 1) / len(q)
-            w = w * w * (3 - 2 * w)
+            if a >= 2:
+                q = velocity_handoff(q, rot[a - 2:a], prior.spec.fps)
+            w = smoothstep(np.arange(1, len(q) + 1) / len(q))
             fix = R.quat_multiply(torch.from_numpy(prep.model.rotations[b]), R.quat_conjugate(torch.from_numpy(q[-1])))
             ident = R.quat_identity(fix.shape[:-1])
             turn = R.quat_slerp(ident.expand(len(q), *fix.shape), fix.expand(len(q), *fix.shape),
@@ -200,8 +200,7 @@ def velocity_handoff(q: np.ndarray, q_before: np.ndarray, fps: float, seconds: f
     prior's own over ``seconds`` (smoothstep weights): the gap leaves the kept frames
     without a change of joint velocity, which the prior's first step does not quite keep."""
     k = np.arange(1, len(q) + 1)
-    u = 1 - np.clip((k - 1) / max(seconds * fps, 1e-9), 0.0, 1.0)
-    u = u * u * (3 - 2 * u)
+    u = smoothstep(1 - (k - 1) / max(seconds * fps, 1e-9))
     q0, q1 = torch.from_numpy(q_before[0]), torch.from_numpy(q_before[1])
     step = R.quat_to_axis_angle(R.quat_multiply(R.quat_conjugate(q0), q1))
     steady = R.quat_multiply(q1.expand(len(k), *q1.shape),

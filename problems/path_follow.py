@@ -15,6 +15,7 @@ from motionopt.features import decode_motion
 from motionopt.metrics import foot_skating
 from motionopt.motion import Motion
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
+from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
@@ -161,8 +162,7 @@ class PathFollow:
                 prev = prev + np.arctan2(np.sin(want - prev), np.cos(want - prev))
             yaw[i] = prev
         yaw = gaussian_filter1d(yaw, fps / 15, mode="nearest")
-        ramp = np.clip(np.arange(len(pts)) / max(fps / 3, 1), 0, 1)
-        ramp = ramp * ramp * (3 - 2 * ramp)
+        ramp = smoothstep(np.arange(len(pts)) / max(fps / 3, 1))
         yaw = yaw_end + ramp * (yaw - yaw_end)
         return root_features(pts, yaw)
 
@@ -178,8 +178,8 @@ class PathFollow:
         tgt, n_new, speed = self.targets(prep, fps)
         # a seed that ends off the path joins it over the first JOIN_SECONDS
         off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
-        fade = np.clip(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1), 0, 1)[:, None]
-        tgt = tgt + off * fade * fade * (3 - 2 * fade)
+        fade = smoothstep(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1))[:, None]
+        tgt = tgt + off * fade
         n_seed = len(prep.x)
         n = n_seed + n_new
         cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
