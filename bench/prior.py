@@ -174,13 +174,10 @@ def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, temperature: 
     return out
 
 
-def contact_index(prior) -> list[int]:
-    return [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
-
 
 def skating(prior, pos: Tensor, clip: Clip) -> float:
     """Foot skating (m/s) of positions, planted heights taken from the clip itself."""
-    cidx = contact_index(prior)
+    cidx = prior.spec.contact_indices()
     ref = torch.from_numpy(clip.motion.positions())
     rest = metrics.rest_heights(ref, cidx, clip.start.ground)
     return float(metrics.foot_skating(pos, prior.spec.fps, cidx, clip.start.ground, rest))

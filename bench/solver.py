@@ -92,7 +92,7 @@ class Case:
 
     def skating_cm_s(self, res: MAPResult) -> float:
         prior = self.objective.prior
-        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        cidx = prior.spec.contact_indices()
         pos = torch.from_numpy(positions(self, res)[self.first:])
         return float(foot_skating(pos, prior.spec.fps, cidx)) * 100
 
@@ -104,7 +104,7 @@ def positions(case: Case, res: MAPResult) -> np.ndarray:
 
 
 def contact_term(prior, model: Motion) -> ContactTerm:
-    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     return ContactTerm(cidx, np.percentile(model.positions()[:, cidx, 1], 5.0, axis=0), 0.1, 0.02)
 
 
@@ -148,7 +148,7 @@ def denoise_case(prior, name: str, model: Motion, seconds: float, rms: float = 0
     terms = [PoseFidelityTerm(noisy.root, noisy.rotations, 0.03, 0.08, name="fidelity"), contact_term(prior, noisy)]
     problem = Problem(prior.normalizer.normalize(raw).float(), np.ones(n, bool), start)
     err = float(np.linalg.norm(noisy.positions() - clean.positions(), axis=-1).mean()) * 100
-    cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     skate = float(foot_skating(torch.from_numpy(noisy.positions()), prior.spec.fps, cidx)) * 100
     return Case("denoise", name, MAPObjective(prior, model.skeleton, terms), problem, clean, 0,
                 input_error_cm=err, input_skating_cm_s=skate)

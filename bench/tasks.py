@@ -76,9 +76,6 @@ def short(name: str) -> str:
     return name.replace("dataset-1_", "").replace("_001", "").replace(".bvh", "")
 
 
-def contact_index(prior) -> list[int]:
-    return [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
-
 
 def continuation_nll(prior, m: Motion, start: int) -> float:
     """Mean prior NLL per frame of frames ``start:`` given the frames before them."""
@@ -89,7 +86,7 @@ def continuation_nll(prior, m: Motion, start: int) -> float:
 
 
 def skating(prior, m: Motion) -> float:
-    return float(foot_skating(torch.from_numpy(m.positions()), m.fps, contact_index(prior))) * 100
+    return float(foot_skating(torch.from_numpy(m.positions()), m.fps, prior.spec.contact_indices())) * 100
 
 
 def table(header: list[str], rows: list[list]) -> list[str]:
@@ -188,7 +185,7 @@ def savgol():
 
 def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters: int) -> list[str]:
     fps = prior.spec.fps
-    cidx = contact_index(prior)
+    cidx = prior.spec.contact_indices()
     lines = [f"2. Denoising ({len(clips)} held-out clips at the prior's "
              f"{fps:g} fps, first {seconds:g} s of each; MAP: {iters} L-BFGS iterations per window)"]
     variants = {"ours (per-joint low-pass)": {},

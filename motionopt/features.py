@@ -59,6 +59,10 @@ class FeatureSpec:
         """Dimensions modelled as continuous (everything but the contact labels)."""
         return self.dim - self.num_contacts
 
+    def contact_indices(self) -> list[int]:
+        """Positions of the contact joints in ``joints``, in the order of the contact labels."""
+        return [self.joints.index(n) for n in self.contact_joints]
+
     def slices(self) -> dict[str, slice]:
         j6 = 6 * (len(self.joints) - 1)
         return {
@@ -162,7 +166,7 @@ def encode(motion: Motion, spec: FeatureSpec, ground: float | None = None) -> tu
         raise ValueError("encode expects a motion on the prior's joints; call to_model_motion first")
     q = torch.from_numpy(motion.rotations)
     root = torch.from_numpy(motion.root)
-    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    cidx = spec.contact_indices()
     pos = motion.positions()
     if ground is None:
         ground = estimate_ground(pos, cidx)
@@ -241,7 +245,7 @@ def decode_motion(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, start: RootS
 
 def contact_heights(x: Tensor, spec: FeatureSpec, skeleton: Skeleton) -> Tensor:
     """Height above the ground (..., T, C) of each contact joint in unnormalised frames ``x``."""
-    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    cidx = spec.contact_indices()
     return decode_positions(x, spec, skeleton)[..., cidx, 1]
 
 
@@ -262,7 +266,7 @@ def planted_root_step(prev: Tensor, new: Tensor, spec: FeatureSpec, skeleton: Sk
     both = torch.stack((prev, new), dim=-2).clone()
     both[..., s["root_delta"]] = 0.0
     both[..., s["yaw_delta"]] = 0.0
-    cidx = [spec.joints.index(n) for n in spec.contact_joints]
+    cidx = spec.contact_indices()
     body = decode_positions(both, spec, skeleton)[..., cidx, :]  # (B, 2, C, 3), each in its own heading frame
     turn = R.yaw_quat(new[..., s["yaw_delta"]].expand(*new.shape[:-1], len(cidx)))
     need = (body[..., 0, :, :] - R.quat_apply(turn, body[..., 1, :, :]))[..., [0, 2]]

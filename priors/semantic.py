@@ -50,7 +50,7 @@ class AttributeScorer:
         self.prior = prior
         sk = prior.skeleton
         self.arm = A.right_arm(sk.names, sk.parents)
-        cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+        cidx = prior.spec.contact_indices()
         self.standing = A.standing_height(sk, cidx)
         self.height_dim = prior.spec.slices()["root_height"].start
 

@@ -87,7 +87,7 @@ class Geometry:
 
     def __init__(self, prior: LatentPrior):
         self.prior = prior
-        self.contact_idx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+        self.contact_idx = prior.spec.contact_indices()
 
     def positions(self, x: Tensor) -> Tensor:
         """(B, T, J, 3) metres, every window starting at the origin facing +z."""

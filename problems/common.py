@@ -77,7 +77,7 @@ def prepare(motion: Motion, prior) -> Prepared:
     check_compatible(prior.spec, motion.skeleton)
     model = to_model_motion(motion, prior.spec)
     raw, start = encode(model, prior.spec)
-    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     pos = model.positions()
     planted = np.percentile(pos[:, cidx, 1], 5.0, axis=0)
     return Prepared(motion, model, raw, prior.normalizer.normalize(raw).float(), start, planted)
@@ -94,7 +94,7 @@ class TermSigmas:
 
 def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
     """Contact (and optional smoothness) terms every task adds to its own."""
-    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     terms: list[Term] = [ContactTerm(cidx, prep.planted_height, sigmas.contact_speed, sigmas.contact_height)]
     if sigmas.smoothness:
         terms.append(SmoothnessTerm(sigmas.smoothness))
@@ -214,7 +214,7 @@ def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray
     from motionopt.footik import clean_contacts
 
     contacts = contact_probabilities(prior, x)
-    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     contacts = np.maximum(contacts, contact_labels(model.positions(), cidx, model.fps, 0.0,
                                                    prior.spec.contact_height, slow))
     keep = np.ones(model.num_frames, bool)

@@ -125,7 +125,7 @@ class Denoise:
             model = plant_feet(model, prior, x, prep.planted_height, slice(0, n), slow=0.0)
         seconds = time.perf_counter() - t0
         fps = prior.spec.fps
-        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        cidx = prior.spec.contact_indices()
         before, after = torch.from_numpy(prep.model.positions()), torch.from_numpy(model.positions())
         metrics = {
             "jerk_input_m_per_s3": float(jerk(before, fps)),

@@ -182,7 +182,7 @@ class PathFollow:
         tgt = tgt + off * fade
         n_seed = len(prep.x)
         n = n_seed + n_new
-        cidx = [prior.spec.joints.index(j) for j in prior.spec.contact_joints]
+        cidx = prior.spec.contact_indices()
         gen = torch.Generator().manual_seed(self.options.seed)
         ctx = prep.x[-prior.receptive_field:].expand(self.candidates, -1, -1)
         new = clamped_rollout(prior, ctx, torch.from_numpy(self.root_channels(prep, tgt, fps)), slice(0, 3),

@@ -118,7 +118,7 @@ def test_contact_labels_follow_the_step():
 def test_contact_thresholds_are_parameters_that_change_labels():
     _, spec, model, _, _ = encoded(MARTIAL)
     pos = model.positions()
-    idx = [spec.joints.index(n) for n in spec.contact_joints]
+    idx = spec.contact_indices()
     ground = estimate_ground(pos, idx)
 
     def labels(height, speed):

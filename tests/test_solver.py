@@ -33,7 +33,7 @@ def prepared(prior, path: Path):
 
 
 def contact_term(prior, model) -> ContactTerm:
-    cidx = [prior.spec.joints.index(n) for n in prior.spec.contact_joints]
+    cidx = prior.spec.contact_indices()
     return ContactTerm(cidx, np.percentile(model.positions()[:, cidx, 1], 5.0, axis=0))
 
 
