@@ -27,6 +27,7 @@ import csv
 import hashlib
 import io
 import json
+import logging
 import os
 import time
 import traceback
@@ -375,6 +376,9 @@ def _run_dask(jobs: list[FileJob], workers: int, scheduler: str | None) -> Itera
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise BatchError("--workers above 1 and --scheduler need Dask: pip install 'motionopt[cluster]'") from None
+    # Dask's own start-up and shutdown chatter (INFO) only with --verbose, as ours
+    verbose = logging.getLogger("motionopt").isEnabledFor(logging.DEBUG)
+    logging.getLogger("distributed").setLevel(logging.INFO if verbose else logging.WARNING)
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)

@@ -7,6 +7,8 @@ import json
 import os
 import shutil
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -144,6 +146,15 @@ def test_batch_on_a_local_cluster_matches_the_local_run(tree, tmp_path, cluster)
     assert [(r.file, r.status, r.output_sha256) for r in spread.results] == \
         [(r.file, r.status, r.output_sha256) for r in local.results]
     assert {r.worker for r in spread.results if r.status == "ok"} <= set(client.run(os.getpid))
+
+
+def test_workers_on_the_command_line_keep_dask_chatter_out_of_the_terminal(tree, tmp_path):
+    """In a real process (pytest's own log capture would hide the chatter): only our lines."""
+    pytest.importorskip("distributed")
+    run = subprocess.run([sys.executable, "-m", "motionopt", "batch", "denoise", "--in", str(tree), "--out",
+                          str(tmp_path / "out"), "--workers", "2"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 1 and "failed: cmu/broken.bvh" in run.stderr  # the tree holds one bad file
+    assert "INFO" not in run.stderr and "Scheduler at" not in run.stderr
 
 
 def test_killing_a_worker_mid_batch_loses_and_duplicates_nothing(tree, tmp_path, cluster):
