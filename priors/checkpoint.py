@@ -52,7 +52,7 @@ def save_prior(prior, path: str | Path, extra: dict | None = None, dtype: torch.
     """Write a prior's weights and metadata. ``dtype`` float16 halves the file (the latent
     priors ship so: joint positions of generated windows move 0.4 mm on average, 5 mm
     at most, against float32 weights); loading always gives float32."""
-    state = {k: v.detach().to(dtype).clone() if v.is_floating_point() else v.clone()
+    state = {k: v.detach().to("cpu", dtype).clone() if v.is_floating_point() else v.cpu().clone()
              for k, v in prior.state_dict().items()}
     atomic_torch_save({
         "kind": type(prior).__name__,

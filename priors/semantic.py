@@ -7,13 +7,18 @@ A direction is the unit normal of a linear classifier in W:
 - for style labels (Bandai file names): encode windows of the labelled training clips,
   average each W+ code over layers, fit one-vs-rest logistic regression.
 
-An edit adds ``strength * scale * direction`` to every layer of a W+ code, where
-``scale`` is the standard deviation of sampled w along the direction: strength is in
-standard deviations of W.
+An edit adds ``strength * scale * direction`` to the direction's layers of a W+ code,
+where ``scale`` is the standard deviation of sampled w along the direction: strength is
+in standard deviations of W. The layers of a computed attribute are the run of layers
+whose edit moves the other attributes least for how far it moves its own, chosen on
+sampled motions apart from those the direction was fitted on (as StyleGAN edits are
+restricted to the layers that carry a property): the Bandai prior's root speed lives in
+layers 1 and after, and editing layer 0 too moves the arm lift with it.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
@@ -35,9 +40,17 @@ class Direction:
     scale: float
     accuracy: float
     source: str
+    #: W+ layers an edit moves; None for every layer.
+    layers: list[int] | None = None
 
     def vector(self) -> Tensor:
         return torch.tensor(self.direction, dtype=torch.float32)
+
+    def offset(self, num_ws: int) -> Tensor:
+        """Unit edit of a W+ code (num_ws, w_dim): the direction on its layers, zero elsewhere."""
+        mask = torch.zeros(num_ws, 1)
+        mask[list(range(num_ws)) if self.layers is None else self.layers] = 1.0
+        return mask * self.vector()
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -102,7 +115,47 @@ def fit_attribute_directions(prior: LatentPrior, n: int = 2000, seed: int = 0) -
         d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{n} sampled motions, above/below median score", wn, seed)
         if d is not None:
             out[k] = d
+    probe = prior.broadcast(prior.sample_w(LAYER_PROBE_SAMPLES, torch.Generator().manual_seed(seed + 1)))
+    for k, d in out.items():
+        d.layers = choose_layers(prior, d, probe, scorer)
     return out
+
+
+#: Sampled motions the layers of a direction are chosen on, and the strength they are edited by.
+LAYER_PROBE_SAMPLES = 256
+LAYER_PROBE_STRENGTH = 2.0
+#: A run of layers must move its attribute at least this share of what editing every layer does.
+LAYER_MIN_SHARE = 0.5
+
+
+@torch.no_grad()
+def choose_layers(prior: LatentPrior, d: Direction, wplus: Tensor, scorer: AttributeScorer) -> list[int]:
+    """The run of W+ layers a..b whose edit of ``wplus`` by +-``LAYER_PROBE_STRENGTH``
+    moves the other attributes least relative to ``d``'s own (changes of the mean score in
+    standard deviations of the unedited scores), among the runs that move it at least
+    ``LAYER_MIN_SHARE`` as far as editing every layer does."""
+    base = scorer(prior.generate(wplus))
+    std = {k: v.std().clamp_min(1e-12) for k, v in base.items()}
+    L = prior.num_ws
+
+    def moves(layers: list[int]) -> tuple[float, float]:
+        edit = replace(d, layers=layers).offset(L) * d.scale
+        own, ratio = [], 0.0
+        for s in (-LAYER_PROBE_STRENGTH, LAYER_PROBE_STRENGTH):
+            sc = scorer(prior.generate(wplus + s * edit))
+            shift = {k: float((sc[k].mean() - base[k].mean()).abs() / std[k]) for k in sc}
+            own.append(shift[d.name])
+            ratio = max(ratio, max(v for k, v in shift.items() if k != d.name) / max(shift[d.name], 1e-9))
+        return min(own), ratio
+
+    every, _ = moves(list(range(L)))
+    best, best_ratio = list(range(L)), math.inf
+    for a in range(L):
+        for b in range(a, L):
+            own, ratio = moves(list(range(a, b + 1)))
+            if own >= LAYER_MIN_SHARE * every and ratio < best_ratio:
+                best, best_ratio = list(range(a, b + 1)), ratio
+    return best
 
 
 @torch.no_grad()
@@ -139,5 +192,5 @@ def directions_of(prior: LatentPrior) -> dict[str, Direction]:
 
 
 def edit_codes(wplus: Tensor, d: Direction, strength: float) -> Tensor:
-    """W+ codes moved by ``strength`` standard deviations along a direction, every layer."""
-    return wplus + strength * d.scale * d.vector().to(wplus)
+    """W+ codes moved by ``strength`` standard deviations along a direction, on its layers."""
+    return wplus + strength * d.scale * d.offset(wplus.shape[-2]).to(wplus)

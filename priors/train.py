@@ -40,6 +40,8 @@ class TrainConfig:
     seed: int = 0
     max_minutes: float | None = None
     threads: int | None = None
+    #: Torch device of the training ("cpu", "cuda"); checkpoints are always written for the CPU.
+    device: str = "cpu"
     model: CCNetConfig = field(default_factory=CCNetConfig)
 
 
@@ -118,13 +120,16 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     out = Path(out)
     sp = start_run(out, force, config.threads, config.seed)
     gen = torch.Generator().manual_seed(config.seed)
-    train_w, train_valid = dataset.padded_windows("train", config.window, config.stride, config.min_clip_frames)
-    val_w, val_valid = (dataset.padded_windows("val", config.window, config.window // 2, config.min_clip_frames)
+    dev = torch.device(config.device)
+    train_w, train_valid = (t.to(dev) for t in dataset.padded_windows("train", config.window, config.stride,
+                                                                        config.min_clip_frames))
+    val_w, val_valid = ((t.to(dev) for t in dataset.padded_windows("val", config.window, config.window // 2,
+                                                                    config.min_clip_frames))
                         if dataset.val else (None, None))
     meta = provenance(dataset, config, metadata)
     state = load_plain(sp) if sp.exists() else None
     model = config.model if state is None else resumed_architecture(state, config.model)
-    prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, model, meta)
+    prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, model, meta).to(dev)
     opt = torch.optim.Adam(prior.parameters(), lr=config.lr)
     steps_per_epoch = math.ceil(len(train_w) / config.batch_size)
     total_steps = steps_per_epoch * config.epochs
@@ -147,7 +152,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
                    leave=False)
         sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0}
         for step in bar:
-            idx = order[step * config.batch_size:(step + 1) * config.batch_size]
+            idx = order[step * config.batch_size:(step + 1) * config.batch_size].to(dev)
             loss, parts = prior.loss(train_w[idx], train_valid[idx], config.noise_std, config.smooth_weight,
                                      config.contact_weight, config.passes)
             opt.zero_grad(set_to_none=True)
@@ -193,4 +198,4 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             break
     logf.close()
     prior.eval()
-    return prior
+    return prior.cpu()

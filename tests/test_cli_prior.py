@@ -5,13 +5,12 @@ import json
 
 import pytest
 import torch
+from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
 
 from motionopt import bvh
 from motionopt.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
 from priors.score import score_motion
-
-from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
 
 
 @pytest.fixture(scope="module")
@@ -144,3 +143,35 @@ def test_train_prior_command_writes_a_usable_checkpoint(capsys, tmp_path):
     assert info["training_command"].startswith("motionopt train-prior --data ")
     assert "--epochs 1 " in info["training_command"] and "--licence 'CC0 test'" in info["training_command"]
     assert score_json(capsys, clips[0], out)["frames"] == bvh.load(clips[0]).num_frames
+
+
+def test_train_prior_records_model_options_and_its_command_reproduces_them(capsys, tmp_path):
+    import shlex
+
+    from motionopt.cli import build_parser
+    from motionopt.cli.prior import train_config
+
+    clips = cmu_clips()[:3]
+    out = tmp_path / "small.pt"
+    rc, _, err = run(capsys, "train-prior", "--data", DATA, "--include", *[c.name for c in clips], "--val",
+                     clips[-1].name, "--out", out, "--epochs", "1", "--window", "32", "--channels", "16",
+                     "--log-std-min", "-3", "--input-dropout", "0.2", "-q")
+    assert rc == 0, err
+    data = read_checkpoint(out)
+    cfg = data["config"]
+    assert (cfg["channels"], cfg["skip_channels"], cfg["log_std_min"], cfg["input_dropout"]) == (16, 32, -3.0, 0.2)
+    command = data["metadata"]["training_command"]
+    assert "--channels 16" in command and "--log-std-min -3" in command and "--noise-std" not in command
+    again = train_config(build_parser().parse_args(shlex.split(command)[1:]))
+    assert again.model.to_dict() == cfg and again.epochs == 1 and again.window == 32
+
+
+def test_train_prior_defaults_are_the_configs_defaults():
+    from motionopt.cli.prior import TRAIN_DEFAULTS
+    from priors.ccnet import CCNetConfig
+    from priors.train import TrainConfig
+
+    train, model = TrainConfig(), CCNetConfig()
+    assert model.skip_channels == 2 * model.channels
+    for key, value in TRAIN_DEFAULTS.items():
+        assert getattr(train if hasattr(train, key) else model, key) == value, key

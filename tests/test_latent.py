@@ -8,21 +8,27 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from priorkit import DATA, cmu_clips, tiny_dataset
 
 from motionopt import attributes as A
 from motionopt import bvh
 from motionopt.cli import main
 from motionopt.cli.latent import TINY
 from motionopt.inversion import InversionOptions, blend, invert, window_starts
+from motionopt.rotations import quat_multiply, yaw_quat
 from priors.checkpoint import CheckpointError, load_prior, read_checkpoint
 from priors.latent import LatentConfig, LatentPrior
 from priors.protocol import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
-from motionopt.rotations import quat_multiply, yaw_quat
-from problems.latent import LatentOptions, anchor_root, complete, fuse, infill, reconstruct
-
-from priorkit import DATA, cmu_clips, tiny_dataset
+from problems.latent import (
+    LatentOptions,
+    anchor_root,
+    complete,
+    fuse,
+    infill,
+    reconstruct,
+)
 
 WINDOW = 32
 
@@ -163,6 +169,31 @@ def test_semantic_direction_moves_the_score(prior):
         assert up > down, name
         checked += 1
     assert checked == 2
+
+
+def test_edit_moves_only_the_directions_layers(prior):
+    from dataclasses import replace
+
+    d = directions_of(prior)["crouch"]
+    w = prior.broadcast(prior.sample_w(4, torch.Generator().manual_seed(2)))
+    some = replace(d, layers=[1, 2])
+    moved = (edit_codes(w, some, 1.5) - w).norm(dim=-1)
+    assert torch.all(moved[:, [1, 2]] > 0) and torch.all(moved[:, [0, *range(3, prior.num_ws)]] == 0)
+    every = (edit_codes(w, replace(d, layers=None), 1.5) - w).norm(dim=-1)
+    assert torch.allclose(every, torch.full_like(every, 1.5 * d.scale), rtol=1e-4)
+
+
+def test_fitted_directions_edit_a_run_of_layers(prior):
+    from priors.semantic import choose_layers
+
+    dirs = directions_of(prior)
+    for name in ("crouch", "root_speed"):
+        layers = dirs[name].layers
+        assert layers and layers == list(range(layers[0], layers[-1] + 1)), (name, layers)
+    scorer = AttributeScorer(prior)
+    probe = prior.broadcast(prior.sample_w(64, torch.Generator().manual_seed(5)))
+    chosen = choose_layers(prior, dirs["crouch"], probe, scorer)
+    assert chosen == list(range(chosen[0], chosen[-1] + 1)) and 0 <= chosen[0] <= chosen[-1] < prior.num_ws
 
 
 def test_gral_score_follows_the_arm():

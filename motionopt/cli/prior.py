@@ -8,6 +8,11 @@ from pathlib import Path
 
 from . import add_common
 
+#: Defaults of the train-prior options that map onto ``TrainConfig`` and ``CCNetConfig``
+#: (written out so that the parser does not import torch).
+TRAIN_DEFAULTS = {"batch_size": 32, "noise_std": 0.03, "smooth_weight": 10.0, "channels": 64,
+                  "input_dropout": 0.1, "log_std_min": -5.0}
+
 
 def register(sub) -> None:
     p = sub.add_parser("train-prior", help="train an autoregressive prior on a folder of BVH files",
@@ -21,6 +26,19 @@ def register(sub) -> None:
     p.add_argument("--passes", type=int, default=2,
                    help="passes per batch; passes after the first learn from the model's own predictions "
                    "(default 2; 1 is plain teacher forcing)")
+    d = TRAIN_DEFAULTS
+    p.add_argument("--batch-size", type=int, default=d["batch_size"], help=f"windows per step (default {d['batch_size']})")
+    p.add_argument("--noise-std", type=float, default=d["noise_std"],
+                   help=f"std of the noise added to the history in normalised units (default {d['noise_std']:g})")
+    p.add_argument("--smooth-weight", type=float, default=d["smooth_weight"],
+                   help=f"weight of the smoothness of the predicted means (default {d['smooth_weight']:g})")
+    p.add_argument("--channels", type=int, default=d["channels"],
+                   help=f"residual channels of the network; skip channels are twice this (default {d['channels']})")
+    p.add_argument("--input-dropout", type=float, default=d["input_dropout"],
+                   help=f"dropout on the input features (default {d['input_dropout']:g})")
+    p.add_argument("--log-std-min", type=float, default=d["log_std_min"],
+                   help=f"floor of the predicted log-std, normalised units (default {d['log_std_min']:g})")
+    p.add_argument("--device", default="cpu", help="torch device to train on: cpu (default) or cuda")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
 
@@ -72,15 +90,29 @@ def training_dataset(args: argparse.Namespace):
     return ds
 
 
+def train_config(args: argparse.Namespace):
+    """The ``TrainConfig`` that parsed train-prior options ask for."""
+    from priors.ccnet import CCNetConfig
+    from priors.train import TrainConfig
+
+    model = CCNetConfig(channels=args.channels, skip_channels=2 * args.channels, input_dropout=args.input_dropout,
+                        log_std_min=args.log_std_min)
+    return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
+                       threads=args.threads, passes=args.passes, batch_size=args.batch_size,
+                       noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model)
+
+
+def train_metadata(args: argparse.Namespace) -> dict:
+    """What a checkpoint records of the train-prior command that made it."""
+    return {"training_command": train_command(args), "data": str(Path(args.data)), "licence": args.licence}
+
+
 def cmd_train(args: argparse.Namespace) -> int:
-    from priors.ccnet import CCNetConfig  # noqa: F401  (config defaults documented there)
-    from priors.train import TrainConfig, train_prior
+    from priors.train import train_prior
 
     ds = training_dataset(args)
-    cfg = TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
-                      threads=args.threads, passes=args.passes)
-    meta = {"training_command": train_command(args), "data": str(Path(args.data)), "licence": args.licence}
-    train_prior(ds, args.out, cfg, metadata=meta, progress=not args.quiet, force=args.force)
+    train_prior(ds, args.out, train_config(args), metadata=train_metadata(args), progress=not args.quiet,
+                force=args.force)
     if not args.quiet:
         print(f"wrote {args.out}")
     return 0
@@ -92,6 +124,12 @@ def train_command(args: argparse.Namespace) -> str:
              "--unit", args.unit, "--epochs", str(args.epochs), "--window", str(args.window),
              "--passes", str(args.passes), "--seed", str(args.seed),
              "--licence", args.licence]
+    d = TRAIN_DEFAULTS
+    for key in d:  # model and loss settings, where they differ from the defaults
+        if getattr(args, key) != d[key]:
+            words += ["--" + key.replace("_", "-"), f"{getattr(args, key):g}"]
+    if args.device != "cpu":
+        words += ["--device", args.device]
     for flag, values in (("--val", args.val), ("--include", args.include)):
         if values is not None:
             words += [flag, *values]
