@@ -164,7 +164,7 @@ WRONG = [
     ("a weight missing", lambda d: _edit(d, lambda c: c["state_dict"].pop("encoder.0.weight")),
      "encoder.0.weight is missing"),
     ("a config asking for a large network", lambda d: _edit(d, lambda c: c["config"].update(channels=8192)),
-     r"its weights do not fit its config: blocks.0.conv.bias is \(128,\), the config makes \(16384,\)"),
+     r"its weights do not fit its config: blocks.0.conv.bias is \(\d+,\), the config makes \(16384,\)"),
     ("a config of another kind", lambda d: _edit(d, lambda c: c["config"].update(window=64)),
      "config does not describe a CCNetPrior"),
     ("a config value of the wrong type", lambda d: _edit(d, lambda c: c["config"].update(channels="64")),
