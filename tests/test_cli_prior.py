@@ -5,12 +5,13 @@ import json
 
 import pytest
 import torch
-from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
 
 from motionopt import bvh
 from motionopt.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
 from priors.score import score_motion
+
+from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
 
 
 @pytest.fixture(scope="module")

@@ -8,27 +8,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from priorkit import DATA, cmu_clips, tiny_dataset
 
 from motionopt import attributes as A
 from motionopt import bvh
 from motionopt.cli import main
 from motionopt.cli.latent import TINY
 from motionopt.inversion import InversionOptions, blend, invert, window_starts
-from motionopt.rotations import quat_multiply, yaw_quat
 from priors.checkpoint import CheckpointError, load_prior, read_checkpoint
 from priors.latent import LatentConfig, LatentPrior
 from priors.protocol import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
-from problems.latent import (
-    LatentOptions,
-    anchor_root,
-    complete,
-    fuse,
-    infill,
-    reconstruct,
-)
+from motionopt.rotations import quat_multiply, yaw_quat
+from problems.latent import LatentOptions, anchor_root, complete, fuse, infill, reconstruct
+
+from priorkit import DATA, cmu_clips, tiny_dataset
 
 WINDOW = 32
 
@@ -172,8 +166,6 @@ def test_semantic_direction_moves_the_score(prior):
 
 
 def test_edit_moves_only_the_directions_layers(prior):
-    from dataclasses import replace
-
     d = directions_of(prior)["crouch"]
     w = prior.broadcast(prior.sample_w(4, torch.Generator().manual_seed(2)))
     some = replace(d, layers=[1, 2])
