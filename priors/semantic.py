@@ -12,12 +12,11 @@ where ``scale`` is the standard deviation of sampled w along the direction: stre
 in standard deviations of W. The layers of a computed attribute are the run of layers
 whose edit moves the other attributes least for how far it moves its own, chosen on
 sampled motions apart from those the direction was fitted on (as StyleGAN edits are
-restricted to the layers that carry a property): the Bandai prior's root speed lives in
-layers 1 and after, and editing layer 0 too moves the arm lift with it.
+restricted to the layers that carry a property): the Bandai prior's root speed is edited
+on layers 1-2, because editing layer 0 too moves the arm lift with it.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -148,14 +147,10 @@ def choose_layers(prior: LatentPrior, d: Direction, wplus: Tensor, scorer: Attri
             ratio = max(ratio, max(v for k, v in shift.items() if k != d.name) / max(shift[d.name], 1e-9))
         return min(own), ratio
 
-    every, _ = moves(list(range(L)))
-    best, best_ratio = list(range(L)), math.inf
-    for a in range(L):
-        for b in range(a, L):
-            own, ratio = moves(list(range(a, b + 1)))
-            if own >= LAYER_MIN_SHARE * every and ratio < best_ratio:
-                best, best_ratio = list(range(a, b + 1)), ratio
-    return best
+    runs = {(a, b): moves(list(range(a, b + 1))) for a in range(L) for b in range(a, L)}
+    every = runs[0, L - 1][0]
+    a, b = min((run for run, (own, _) in runs.items() if own >= LAYER_MIN_SHARE * every), key=lambda r: runs[r][1])
+    return list(range(a, b + 1))
 
 
 @torch.no_grad()
