@@ -155,10 +155,10 @@ def double_speed(motion: Motion) -> Motion:
 # ---- rollouts -------------------------------------------------------------------------
 @torch.no_grad()
 def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, temperature: float = 1.0,
-             context_s: float = 1.0) -> list[tuple[Clip, Tensor]]:
+             context_s: float = 1.0, plant: bool = True) -> list[tuple[Clip, Tensor]]:
     """World positions (T, J, 3) of ``seconds`` of rollout after 1 s of each clip's
     context (taken from the middle of the clip), one per clip and seed; clips shorter
-    than the context are skipped."""
+    than the context are skipped. ``plant``: as ``sample``'s."""
     fps = prior.spec.fps
     c, n = int(round(context_s * fps)), int(round(seconds * fps))
     out = []
@@ -166,13 +166,12 @@ def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, temperature: 
         c0 = max(0, len(clip.x) // 2 - c)
         prefix = clip.x[:c0 + c]
         gen = torch.Generator().manual_seed(0)
-        new = prior.sample(prefix[-c:].expand(seeds, c, -1), n, generator=gen, temperature=temperature)
+        new = prior.sample(prefix[-c:].expand(seeds, c, -1), n, generator=gen, temperature=temperature, plant=plant)
         full = torch.cat((prefix.expand(seeds, -1, -1), new), dim=1)
         raw = prior.normalizer.denormalize(full.double())
         pos = decode_positions(raw, prior.spec, prior.skeleton, clip.start)
         out += [(clip, p[c0 + c:]) for p in pos]
     return out
-
 
 
 def skating(prior, pos: Tensor, clip: Clip) -> float:
@@ -181,6 +180,22 @@ def skating(prior, pos: Tensor, clip: Clip) -> float:
     ref = torch.from_numpy(clip.motion.positions())
     rest = metrics.rest_heights(ref, cidx, clip.start.ground)
     return float(metrics.foot_skating(pos, prior.spec.fps, cidx, clip.start.ground, rest))
+
+
+def data_reference(prior, clips: list[Clip]) -> tuple[float, float]:
+    """Mean joint speed and mean foot skating (m/s) of the held-out clips themselves:
+    what rollouts are measured against."""
+    fps = prior.spec.fps
+    speed = float(torch.cat([metrics.joint_speed(torch.from_numpy(c.motion.positions()), fps).flatten()
+                             for c in clips]).mean())
+    return speed, statistics.mean(skating(prior, torch.from_numpy(c.motion.positions()), c) for c in clips)
+
+
+def window_speed_ratios(pos: Tensor, fps: float, data_speed: float, seconds: float = 5.0) -> list[float]:
+    """Mean joint speed of each whole ``seconds`` window of positions (T, J, 3) over ``data_speed``."""
+    speed = metrics.joint_speed(pos, fps).mean(-1)
+    w = round(seconds * fps)
+    return [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
 
 
 # ---- timing ---------------------------------------------------------------------------
@@ -264,10 +279,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
 
     # 3. rollouts
     fps = prior.spec.fps
-    data_speed = float(torch.cat([metrics.joint_speed(torch.from_numpy(c.motion.positions()), fps).flatten()
-                                  for c in clips]).mean())
-    data_skate = statistics.mean(skating(prior, torch.from_numpy(c.motion.positions()), c) for c in clips)
-    w = int(round(5 * fps))
+    data_speed, data_skate = data_reference(prior, clips)
     for k, temperature in enumerate(temperatures):
         t0 = time.perf_counter()
         runs = rollouts(prior, clips, seconds, seeds, temperature)
@@ -275,8 +287,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
         ratios, skates = [], []
         rows = [["rollout", "speed min", "speed max", "skating m/s", "skating/data"]]
         for i, (clip, pos) in enumerate(runs):
-            speed = metrics.joint_speed(pos, fps).mean(-1)
-            r = [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
+            r = window_speed_ratios(pos, fps, data_speed)
             ratios += r
             sk = skating(prior, pos, clip)
             skates.append(sk)

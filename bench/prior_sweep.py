@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import shlex
 import statistics
 import sys
 import time
@@ -30,7 +31,6 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import prior as bench_prior  # noqa: E402  (bench/prior.py)
 
-from motionopt import metrics  # noqa: E402
 from motionopt.cli import build_parser  # noqa: E402
 from motionopt.cli.prior import train_config, train_metadata  # noqa: E402
 
@@ -49,20 +49,9 @@ SETTINGS: dict[str, list[str]] = {
 
 
 def base_options(like: dict, out: Path) -> list[str]:
-    """train-prior options that rebuild the data split of the checkpoint metadata ``like``."""
-    import shlex
-
-    words = shlex.split(like["training_command"])[2:]
-    keep, i = [], 0
-    while i < len(words):  # drop --out and the run settings; keep data, split, fps, unit, epochs, window, licence
-        w = words[i]
-        n = 1
-        while i + n < len(words) and not words[i + n].startswith("--"):
-            n += 1
-        if w not in ("--out", "--threads", "--max-minutes", "--passes", "--device"):
-            keep += words[i:i + n]
-        i += n
-    return keep + ["--out", str(out)]
+    """train-prior options of the checkpoint metadata ``like``, writing to ``out``; options
+    given after these win (argparse keeps the last), so settings are simply appended."""
+    return [*shlex.split(like["training_command"])[2:], "--out", str(out)]
 
 
 def prepare(like: Path, out: Path) -> None:
@@ -84,28 +73,19 @@ def prepare(like: Path, out: Path) -> None:
 
 
 def rollout_scores(prior, clips, seconds: float) -> dict[str, float]:
-    """Joint speed (mean and worst 5 s window) and skating of rollouts over the data's."""
+    """Per temperature and with or without planting: mean joint speed over the data's, the
+    share of 5 s windows inside 0.3-3 times it, and skating over the data's."""
     fps = prior.spec.fps
-    data_speed = float(torch.cat([metrics.joint_speed(torch.from_numpy(c.motion.positions()), fps).flatten()
-                                  for c in clips]).mean())
-    data_skate = statistics.mean(bench_prior.skating(prior, torch.from_numpy(c.motion.positions()), c)
-                                 for c in clips)
-    sample = prior.sample
+    data_speed, data_skate = bench_prior.data_reference(prior, clips)
     out = {}
-    w = round(5 * fps)
     for plant in (False, True):
-        prior.sample = lambda *a, plant=plant, **k: sample(*a, plant=plant, **k)
         for temperature in (0.3, 1.0):
-            runs = bench_prior.rollouts(prior, clips, seconds, 1, temperature)
-            ratios = []
-            for _, pos in runs:
-                speed = metrics.joint_speed(pos, fps).mean(-1)
-                ratios += [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
+            runs = bench_prior.rollouts(prior, clips, seconds, 1, temperature, plant=plant)
+            ratios = [r for _, pos in runs for r in bench_prior.window_speed_ratios(pos, fps, data_speed)]
             key = f"T{temperature:g}{'-plant' if plant else ''}"
             out[f"{key} speed"] = statistics.mean(ratios)
             out[f"{key} inside"] = sum(0.3 <= r <= 3 for r in ratios) / len(ratios)
             out[f"{key} skate"] = statistics.mean(bench_prior.skating(prior, pos, c) for c, pos in runs) / data_skate
-    prior.sample = sample
     return out
 
 
@@ -117,8 +97,8 @@ def train_and_score(name: str, argv: list[str], prepared: Path, seconds: float) 
     data = torch.load(prepared, weights_only=False)  # our own file, written by ``prepare``
     args = build_parser().parse_args(["train-prior", *argv, "-q"])
     t0 = time.perf_counter()
-    prior = train_prior(data["dataset"], args.out, train_config(args), metadata=train_metadata(args),
-                        progress=False, force=True)
+    train_prior(data["dataset"], args.out, train_config(args), metadata=train_metadata(args), progress=False,
+                force=True)
     minutes = (time.perf_counter() - t0) / 60
     from priors.checkpoint import load_prior
 

@@ -77,7 +77,6 @@ def short(name: str) -> str:
     return name.replace("dataset-1_", "").replace("_001", "").replace(".bvh", "")
 
 
-
 def continuation_nll(prior, m: Motion, start: int) -> float:
     """Mean prior NLL per frame of frames ``start:`` given the frames before them."""
     raw, _ = encode(m, prior.spec)
