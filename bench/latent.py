@@ -19,8 +19,8 @@ clips named in its metadata, loaded from the data folder named there:
    score and the mean horizontal root-path change (cm) against strength 0. The edited
    attribute must move monotonically, and each other attribute must move less than half
    as much as the edited one, in standard deviations of the unedited scores. Style
-   directions (Bandai) are checked by re-encoding the edited motions: the projection of
-   their mean w on the direction, in standard deviations of W.
+   directions (Bandai) are checked by the checkpoint's style classifier
+   (``priors.style``): the probability it gives the style must rise with strength.
 4. Tasks on held-out clips, latent inversion against the autoregressive MAP tasks of
    the same name: denoising (accuracy against the clean clip) and in-betweening of a
    1.5 s gap (accuracy on the gap), with seconds per clip.
@@ -46,7 +46,8 @@ from motionopt.inversion import refine, regulariser
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
-from priors.semantic import AttributeScorer, directions_of, edit_codes
+from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
+from priors.style import StyleClassifier, style_classifier_of
 from problems.latent import FidelityTerm, LatentOptions, infill, reconstruct
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -236,19 +237,46 @@ def semantic(prior) -> list[str]:
             f"; root path within {ROOT_PATH_BOUND_CM:g} cm: {'yes' if max(roots) < ROOT_PATH_BOUND_CM else 'NO'}")
         lines.append(f"   {name}: classifier accuracy {dirs[name].accuracy:.2f}; score monotonic in strength: "
                      f"{'yes' if mono else 'NO'}{path}")
-    styles = sorted(k for k in dirs if k.startswith("style:"))
-    if styles:
-        lines.append("   style directions: projection of re-encoded edited motions on the direction "
-                     "(std of W), strengths " + " ".join(f"{s:g}" for s in STRENGTHS))
-        for name in styles:
-            d = dirs[name]
-            proj = []
-            for s in STRENGTHS:
-                re = prior.encode(prior.generate(edit_codes(w, d, s))).mean(1)
-                proj.append(float(((re - prior.mean_w) @ d.vector()).mean()) / d.scale)
-            mono = all(b > a for a, b in zip(proj, proj[1:]))
-            lines.append(f"   {name:<24} accuracy {d.accuracy:.2f}  " + " ".join(f"{p:7.2f}" for p in proj)
-                         + f"  monotonic: {'yes' if mono else 'NO'}")
+    classifier = style_classifier_of(prior.metadata)
+    styles = [k for k in sorted(dirs) if k.startswith("style:")]
+    if classifier is not None and styles:
+        lines += style_rows(prior, classifier, [dirs[k] for k in styles], w, base, std, base_root)
+    return lines
+
+
+def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Tensor, base: dict[str, Tensor],
+               std: dict[str, float], base_root: Tensor) -> list[str]:
+    """Mean probability the style classifier gives each style's edited samples, by strength;
+    the computed attributes and the root path are reported, not bounded (a style may move
+    them: old people walk slower)."""
+    scorer = AttributeScorer(prior)
+    heldout = ("not measured (no held-out labelled clips)" if classifier.heldout_accuracy is None else
+               f"{classifier.heldout_accuracy:.2f} on {classifier.heldout_windows} windows of held-out clips")
+    lines = [f"   styles: probability the style classifier gives the style (linear softmax over window "
+             f"descriptors, {len(classifier.styles)} styles, fitted on {classifier.train_windows} training "
+             f"windows; accuracy {heldout}), by strength " + " ".join(f"{s:g}" for s in STRENGTHS),
+             f"   {'style':<22}{'W acc':>6}" + "".join(f"{s:>7g}" for s in STRENGTHS)
+             + f"{'monotonic':>10}{'max other/edited':>18}{'root cm':>9}"]
+    n_mono = 0
+    for d in dirs:
+        style = d.name.removeprefix("style:")
+        probs, ratio, root = [], 0.0, 0.0
+        p0 = classifier.score(prior.generate(w), style)
+        for s in STRENGTHS:
+            x = prior.generate(edit_codes(w, d, s))
+            p = classifier.score(x, style)
+            probs.append(float(p.mean()))
+            if s != 0:
+                sc = scorer(x)
+                moved = abs(probs[-1] - float(p0.mean())) / max(float(p0.std()), 1e-12)
+                other = max(abs(float(v.mean() - base[k].mean())) / std[k] for k, v in sc.items())
+                ratio = max(ratio, other / max(moved, 1e-9))
+                root = max(root, float((scorer.root_path(x) - base_root)[..., [0, 2]].norm(dim=-1).mean() * 100))
+        mono = all(b > a for a, b in zip(probs, probs[1:]))
+        n_mono += mono
+        lines.append(f"   {style:<22}{d.accuracy:>6.2f}" + "".join(f"{p:>7.3f}" for p in probs)
+                     + f"{'yes' if mono else 'NO':>10}{ratio:>18.2f}{root:>9.1f}")
+    lines.append(f"   styles whose probability rises monotonically with strength: {n_mono}/{len(dirs)}")
     return lines
 
 

@@ -17,7 +17,7 @@ metadata, loaded from the data folder named there:
    1 cm noise on each joint (which would also bend short bones by degrees), so it is
    the harder test. Double speed keeps every second frame at the same frame rate.
 3. Rollouts: from 1 s of held-out context, sample 60 s (several seeds per clip, at the
-   tasks' sampling temperature 0.3 and at 1); per
+   checkpoint's calibrated sampling temperature, which the tasks use, and at 1); per
    5 s window, mean joint speed (world positions, all modelled joints) over the mean
    joint speed of the held-out clips; foot skating of the rollouts and of the clips:
    mean horizontal speed of the contact joints over frame steps on which they are
@@ -46,6 +46,7 @@ from motionopt.dataset import build_dataset
 from motionopt.features import RootStart, decode_positions, encode, to_model_motion
 from motionopt.motion import Motion
 from priors.checkpoint import load_prior, shipped_checkpoints
+from priors.temperature import window_speed_ratios
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "prior.txt"
@@ -191,13 +192,6 @@ def data_reference(prior, clips: list[Clip]) -> tuple[float, float]:
     return speed, statistics.mean(skating(prior, torch.from_numpy(c.motion.positions()), c) for c in clips)
 
 
-def window_speed_ratios(pos: Tensor, fps: float, data_speed: float, seconds: float = 5.0) -> list[float]:
-    """Mean joint speed of each whole ``seconds`` window of positions (T, J, 3) over ``data_speed``."""
-    speed = metrics.joint_speed(pos, fps).mean(-1)
-    w = round(seconds * fps)
-    return [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
-
-
 # ---- timing ---------------------------------------------------------------------------
 def time_nll_pass(prior, x: Tensor, frames: int = 300, repeats: int = 20) -> float:
     """Median seconds of one forward and backward pass of nll over ``frames`` frames."""
@@ -221,8 +215,9 @@ def table(rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
-def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[float]) -> str:
+def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[float] | None) -> str:
     prior = load_prior(path)
+    temperatures = temperatures or sorted({prior.sample_temperature, 1.0})
     meta = prior.metadata
     folder = data_folder(meta)
     t0 = time.perf_counter()
@@ -279,6 +274,13 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
 
     # 3. rollouts
     fps = prior.spec.fps
+    cal = prior.metadata.get("temperature_calibration")
+    if cal:
+        lines += [f"sampling temperature {prior.sample_temperature:g}, calibrated after training on "
+                  f"{cal['seconds']:g} s rollouts from {len(cal['clips'])} training clips; per temperature, joint "
+                  "speed of 5 s windows over the training data's (min-max) and foot skating over the data's:",
+                  "   " + "; ".join(f"T {t['temperature']:g}: {t['speed_min']:.2f}-{t['speed_max']:.2f}, "
+                                    f"{t['skating']:.2f}" for t in cal["trials"]), ""]
     data_speed, data_skate = data_reference(prior, clips)
     for k, temperature in enumerate(temperatures):
         t0 = time.perf_counter()
@@ -318,9 +320,9 @@ def main() -> None:
     ap.add_argument("checkpoints", nargs="*", type=Path, help="default: the shipped checkpoints")
     ap.add_argument("--seconds", type=float, default=60.0, help="rollout length (default 60)")
     ap.add_argument("--seeds", type=int, default=3, help="rollouts per held-out clip (default 3)")
-    ap.add_argument("--temperatures", type=float, nargs="+", default=[0.3, 1.0],
-                    help="sampling temperatures of the rollouts (default 0.3, the tasks' own, and 1.0); "
-                    "the per-rollout table is printed for the first")
+    ap.add_argument("--temperatures", type=float, nargs="+",
+                    help="sampling temperatures of the rollouts (default: the checkpoint's calibrated one, which "
+                    "the tasks use, and 1); the per-rollout table is printed for the first")
     args = ap.parse_args()
     paths = args.checkpoints or shipped_checkpoints()
     header = f"prior benchmark, {time.strftime('%Y-%m-%d %H:%M')}, torch {torch.__version__}\n"

@@ -33,6 +33,7 @@ import prior as bench_prior  # noqa: E402  (bench/prior.py)
 
 from motionopt.cli import build_parser  # noqa: E402
 from motionopt.cli.prior import train_config, train_metadata  # noqa: E402
+from priors.temperature import window_speed_ratios  # noqa: E402
 
 #: Settings tried: name -> train-prior options beyond those of the checkpoint it is like.
 SETTINGS: dict[str, list[str]] = {
@@ -81,7 +82,7 @@ def rollout_scores(prior, clips, seconds: float) -> dict[str, float]:
     for plant in (False, True):
         for temperature in (0.3, 1.0):
             runs = bench_prior.rollouts(prior, clips, seconds, 1, temperature, plant=plant)
-            ratios = [r for _, pos in runs for r in bench_prior.window_speed_ratios(pos, fps, data_speed)]
+            ratios = [r for _, pos in runs for r in window_speed_ratios(pos, fps, data_speed)]
             key = f"T{temperature:g}{'-plant' if plant else ''}"
             out[f"{key} speed"] = statistics.mean(ratios)
             out[f"{key} inside"] = sum(0.3 <= r <= 3 for r in ratios) / len(ratios)

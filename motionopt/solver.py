@@ -72,12 +72,18 @@ class SolverOptions:
     # lowered the final objective on 0 and the path error on 2 of 10 held-out clips.
     # Pass PSOOptions() to turn it on.
     pso: PSOOptions | None = None
-    temperature: float = 0.3
+    #: Sampling temperature of the rollouts that initialise new frames; None: the prior's
+    #: own (``sample_temperature``, calibrated after training).
+    temperature: float | None = None
     seed: int = 0
     adam_lr: float = 0.02
     time_budget: float | None = None
     callback: Callable[[dict], bool | None] | None = None
     progress: bool = False
+
+    def temperature_for(self, prior) -> float:
+        """``temperature``, or the prior's calibrated one when it is None."""
+        return prior.sample_temperature if self.temperature is None else self.temperature
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -522,6 +528,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
     known = ~torch.isnan(x).any(-1).numpy()
     rf = prior.receptive_field
     p = spec.pose_dim
+    temperature = opts.temperature_for(prior)
     starts = window_starts(free, opts.window, opts.overlap)
     t_total = time.perf_counter()
     timings = {"pso": 0.0, "lbfgs": 0.0, "prior": 0.0, "rollout": 0.0, "objective": 0.0}
@@ -566,10 +573,10 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
             t0 = time.perf_counter()
             if opts.pso is not None:
                 roll, info["fun_pso"], pso_evals = _pso_rollout(win, prior, ctx, first, fill, base, opts.pso,
-                                                                opts.temperature, opts.seed * 7919 + w_i)
+                                                                temperature, opts.seed * 7919 + w_i)
                 timings["pso"] += time.perf_counter() - t0
             else:
-                roll = prior.sample(ctx, e - s - first, temperature=opts.temperature, noise=base)
+                roll = prior.sample(ctx, e - s - first, temperature=temperature, noise=base)
                 timings["rollout"] += time.perf_counter() - t0
             win.x[first:] = torch.where(fill[:, None], roll, win.x[first:])
             x[s:e] = win.x

@@ -26,6 +26,8 @@ from motionopt.dataset import Normalizer
 from motionopt.features import FeatureSpec, contact_heights, planted_root_step
 from motionopt.skeleton import Skeleton
 
+from .temperature import DEFAULT_TEMPERATURE
+
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
@@ -96,6 +98,10 @@ class CCNetPrior(nn.Module):
     @property
     def receptive_field(self) -> int:
         return 1 + sum((self.config.kernel_size - 1) * d for d in self.config.dilations)
+
+    @property
+    def sample_temperature(self) -> float:
+        return float(self.metadata.get("sample_temperature", DEFAULT_TEMPERATURE))
 
     # ---- core pass ---------------------------------------------------------------------
     def _predict(self, history: Tensor) -> tuple[Tensor, Tensor, Tensor]:

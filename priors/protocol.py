@@ -29,6 +29,11 @@ class MotionPrior(Protocol):
     def receptive_field(self) -> int:
         """How many past frames can influence the prediction of a frame."""
 
+    @property
+    def sample_temperature(self) -> float:
+        """The temperature at which long rollouts keep the data's pace (calibrated after
+        training, ``priors.temperature``): what the tasks sample at unless told otherwise."""
+
     def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
         """Per-frame negative log-likelihood -log p(x_t | x_<t) of frames ``x (..., T, D)``.
 

@@ -4,8 +4,10 @@ A direction is the unit normal of a linear classifier in W:
 - for computed attributes (``motionopt.attributes``): sample w from the mapping network,
   generate, score each motion, label it by whether its score is above the median, fit
   a logistic regression on w;
-- for style labels (Bandai file names): encode windows of the labelled training clips,
-  average each W+ code over layers, fit one-vs-rest logistic regression.
+- for style labels (Bandai file names) the same, with a style's score the probability
+  that ``priors.style.StyleClassifier`` (fitted on windows of the labelled training clips)
+  gives it. (Fitting on encoder codes of the labelled clips instead gave directions whose
+  edits the style could not be read back from: the encoder maps far from W's samples.)
 
 An edit adds ``strength * scale * direction`` to the direction's layers of a W+ code,
 where ``scale`` is the standard deviation of sampled w along the direction: strength is
@@ -13,7 +15,8 @@ in standard deviations of W. The layers of a computed attribute are the run of l
 whose edit moves the other attributes least for how far it moves its own, chosen on
 sampled motions apart from those the direction was fitted on (as StyleGAN edits are
 restricted to the layers that carry a property): the Bandai prior's root speed is edited
-on layers 1-2, because editing layer 0 too moves the arm lift with it.
+on layers 1-2, because editing layer 0 too moves the arm lift with it. Styles, which
+are about the whole motion, edit every layer.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from motionopt import attributes as A
 from motionopt.features import RootStart, decode, decode_positions
 
 from .latent import LatentPrior
+from .style import StyleClassifier
 
 
 @dataclass
@@ -97,26 +101,35 @@ def _fit(name: str, w: np.ndarray, labels: np.ndarray, source: str, w_all: np.nd
 
 
 @torch.no_grad()
-def fit_attribute_directions(prior: LatentPrior, n: int = 2000, seed: int = 0) -> dict[str, Direction]:
-    """Directions of the computed attributes from ``n`` sampled motions."""
+def fit_attribute_directions(prior: LatentPrior, n: int = 2000, seed: int = 0,
+                             styles: StyleClassifier | None = None) -> dict[str, Direction]:
+    """Directions of the computed attributes, and of the styles of ``styles`` (scored by
+    the classifier's probability), from ``n`` sampled motions."""
     g = torch.Generator().manual_seed(seed)
     w = prior.sample_w(n, g)
     scorer = AttributeScorer(prior)
     scores: dict[str, list[Tensor]] = {k: [] for k in A.ATTRIBUTES}
     for i in range(0, n, 256):
-        s = scorer(prior.generate(prior.broadcast(w[i:i + 256])))
-        for k in scores:
-            scores[k].append(s[k])
+        x = prior.generate(prior.broadcast(w[i:i + 256]))
+        s = scorer(x)
+        if styles is not None:
+            p = styles.probabilities(x)
+            s.update({f"style:{name}": p[:, j] for j, name in enumerate(styles.styles)})
+        for k, v in s.items():
+            scores.setdefault(k, []).append(v)
     wn = w.double().numpy()
     out = {}
     for k, v in scores.items():
         sc = torch.cat(v).numpy()
-        d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{n} sampled motions, above/below median score", wn, seed)
+        what = "probability of the style classifier" if k.startswith("style:") else "score"
+        d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{n} sampled motions, above/below median {what}", wn,
+                 seed)
         if d is not None:
             out[k] = d
     probe = prior.broadcast(prior.sample_w(LAYER_PROBE_SAMPLES, torch.Generator().manual_seed(seed + 1)))
-    for k, d in out.items():
-        d.layers = choose_layers(prior, d, probe, scorer)
+    for k in A.ATTRIBUTES:
+        if k in out:
+            out[k].layers = choose_layers(prior, out[k], probe, scorer)
     return out
 
 
@@ -151,34 +164,6 @@ def choose_layers(prior: LatentPrior, d: Direction, wplus: Tensor, scorer: Attri
     every = runs[0, L - 1][0]
     a, b = min((run for run, (own, _) in runs.items() if own >= LAYER_MIN_SHARE * every), key=lambda r: runs[r][1])
     return list(range(a, b + 1))
-
-
-@torch.no_grad()
-def fit_style_directions(prior: LatentPrior, clips: dict[str, Tensor], stride: int = 16, seed: int = 0,
-                         min_windows: int = 20) -> dict[str, Direction]:
-    """One direction per style label found in the clip names (normalised features by name)."""
-    codes, labels = [], []
-    for name, x in clips.items():
-        style = A.style_of(name)
-        if style is None or len(x) < prior.window:
-            continue
-        win = x.float().unfold(0, prior.window, stride).permute(0, 2, 1)
-        codes.append(prior.encode(win).mean(1))
-        labels += [style] * len(win)
-    if not codes:
-        return {}
-    w = torch.cat(codes).double().numpy()
-    labels_np = np.array(labels)
-    w_all = prior.sample_w(4096, torch.Generator().manual_seed(seed)).double().numpy()
-    out = {}
-    for style in sorted(set(labels)):
-        y = (labels_np == style).astype(int)
-        if y.sum() < min_windows:
-            continue
-        d = _fit(f"style:{style}", w, y, "encoded windows of labelled clips, one vs rest", w_all, seed)
-        if d is not None:
-            out[d.name] = d
-    return out
 
 
 def directions_of(prior: LatentPrior) -> dict[str, Direction]:

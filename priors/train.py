@@ -15,7 +15,8 @@ from tqdm import tqdm
 from motionopt.dataset import MotionDataset
 
 from .ccnet import CCNetConfig, CCNetPrior
-from .checkpoint import atomic_torch_save, load_plain, save_prior
+from .checkpoint import atomic_torch_save, load_plain, load_prior, save_prior
+from .temperature import calibrate
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +43,9 @@ class TrainConfig:
     threads: int | None = None
     #: Torch device of the training ("cpu", "cuda"); checkpoints are always written for the CPU.
     device: str = "cpu"
+    #: Seconds of the rollouts the sampling temperature is calibrated on after training
+    #: (``priors.temperature``; about 1.5 min for the shipped CMU prior on one core).
+    calibration_seconds: float = 30.0
     model: CCNetConfig = field(default_factory=CCNetConfig)
 
 
@@ -198,4 +202,18 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             break
     logf.close()
     prior.eval()
+    calibrate_checkpoint(out, dataset, config)
     return prior.cpu()
+
+
+def calibrate_checkpoint(out: Path, dataset: MotionDataset, config: TrainConfig) -> None:
+    """Store the sampling temperature (``priors.temperature.calibrate``, on the training
+    clips) in the checkpoint ``out``, unless it holds one for its current weights."""
+    saved = load_prior(out)
+    if "sample_temperature" in saved.metadata:
+        return
+    clips = {k: saved.normalizer.normalize(v).float() for k, v in dataset.train.items()}
+    best = calibrate(saved, clips, config.seed, config.calibration_seconds)
+    log.info("sampling temperature %g: rollouts at %.2f-%.2f times the data's joint speed", best.temperature,
+             best.speed_min, best.speed_max)
+    save_prior(saved, out)

@@ -37,7 +37,8 @@ from motionopt.metrics_latent import frechet_distance, local_position_error_mm, 
 
 from .checkpoint import atomic_torch_save, load_plain, save_prior
 from .latent import Discriminator, LatentConfig, LatentPrior
-from .semantic import fit_attribute_directions, fit_style_directions
+from .semantic import fit_attribute_directions
+from .style import fit_style_classifier
 from .train import log_path, provenance, start_run, state_path
 
 log = logging.getLogger(__name__)
@@ -361,11 +362,16 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
 
 
 def add_directions(prior: LatentPrior, dataset: MotionDataset, seed: int = 0) -> None:
-    """Fit the semantic directions (computed attributes, and style labels of the training
-    clip names when there are any) into ``prior.metadata['attribute_directions']``."""
+    """Fit the semantic directions into ``prior.metadata['attribute_directions']``: those
+    of the computed attributes, and, when the training clip names carry style labels, a
+    style classifier (stored as ``style_classifier``, scored on the held-out clips) and a
+    direction per style."""
     prior.eval()
-    dirs = fit_attribute_directions(prior, seed=seed)
-    clips = {k: dataset.normalizer.normalize(v) for k, v in dataset.train.items()}
-    dirs.update(fit_style_directions(prior, clips, seed=seed))
+    norm = {split: {k: prior.normalizer.normalize(v).float() for k, v in clips.items()}
+            for split, clips in (("train", dataset.train), ("val", dataset.val))}
+    styles = fit_style_classifier(norm["train"], norm["val"], prior.window)
+    if styles is not None:
+        prior.metadata["style_classifier"] = styles.to_dict()
+    dirs = fit_attribute_directions(prior, seed=seed, styles=styles)
     prior.metadata["attribute_directions"] = {k: d.to_dict() for k, d in dirs.items()}
 

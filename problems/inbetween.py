@@ -76,7 +76,8 @@ class Inbetween:
     #: fill should be the likeliest way to the target (held-out LAFAN1-style gaps of 15
     #: frames: NPSS 0.00539 at 0.1 against 0.00580 at 0.3 on CMU, 0.0192 against 0.0199
     #: on Bandai, L2P and L2Q lower too). Completion, which has no target to steer it and
-    #: may run for seconds, samples at ``options.temperature`` so that it does not freeze.
+    #: may run for seconds, samples at the prior's calibrated temperature
+    #: (``SolverOptions.temperature_for``) so that it neither freezes nor jitters.
     gap_temperature: float = 0.1
 
     def __post_init__(self) -> None:
@@ -127,7 +128,7 @@ class Inbetween:
                                           for j in joins],
                    "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
         return TaskResult(out, model, result, metrics, {"keep": self.keep, "frames": total_o,
-                                                        "temperature": self.options.temperature,
+                                                        "temperature": self.options.temperature_for(prior),
                                                         "gap_temperature": self.gap_temperature,
                                                         "refine": self.refine}, warnings)
 
@@ -168,7 +169,8 @@ class Inbetween:
         if b is None:
             # unplanted: the root keeps the prior's pace (planting slows the gait: 36 against
             # 22 cm MPJPE to the real continuation, bench/tasks.py); clean_feet plants by IK
-            new = prior.sample(ctx, n - a, generator=gen, temperature=self.options.temperature, plant=False)
+            new = prior.sample(ctx, n - a, generator=gen, temperature=self.options.temperature_for(prior),
+                               plant=False)
         else:
             k = b - a + 1
             p0, p1 = root[a - 1, [0, 2]], prep.model.root[b, [0, 2]]

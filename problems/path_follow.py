@@ -66,10 +66,11 @@ class PathFollow:
 
     The root channels of every new frame are clamped to the path (``root_channels``:
     on the path at its timing, facing along it as the seed faced its way of travel) and
-    the prior rolls out the rest of each frame (``clamped_rollout``, temperature
-    ``options.temperature``); of ``candidates`` rollouts the one whose feet slide least
-    is kept (contacts planted by leg IK in each, sliding measured as ``metrics.foot_skating``). With ``refine`` the MAP solver (path,
-    contact and prior terms) then polishes it.
+    the prior rolls out the rest of each frame (``clamped_rollout``, at
+    ``options.temperature_for(prior)``); of ``candidates`` rollouts the one whose feet
+    slide least is kept (contacts planted by leg IK in each, sliding measured as
+    ``metrics.foot_skating``). With ``refine`` the MAP solver (path, contact and prior
+    terms) then polishes it.
 
     A timing faster than a person moves, or a result that leaves the path by more than
     ``PATH_TOLERANCE``, still gives the best compromise, with ``TaskResult.warnings`` saying so.
@@ -186,7 +187,7 @@ class PathFollow:
         gen = torch.Generator().manual_seed(self.options.seed)
         ctx = prep.x[-prior.receptive_field:].expand(self.candidates, -1, -1)
         new = clamped_rollout(prior, ctx, torch.from_numpy(self.root_channels(prep, tgt, fps)), slice(0, 3),
-                              self.options.temperature, gen)
+                              self.options.temperature_for(prior), gen)
         xs = torch.cat((prep.x.expand(self.candidates, -1, -1), new), dim=1)
         result = None
         # of the candidate rollouts, with their feet planted, the one whose feet slide least
@@ -226,9 +227,9 @@ class PathFollow:
             "frames_per_second": n_new / max(seconds, 1e-9),
         }
         warnings = warned(self.speed_warnings(speed, float(np.linalg.norm(off))) + distance_warnings(dist))
-        return TaskResult(motion, model, result, metrics, {"sigma_path": self.sigma_path, "speed": speed,
-                                                           "new_seconds": n_new / fps, "refine": self.refine,
-                                                           "temperature": self.options.temperature}, warnings)
+        settings = {"sigma_path": self.sigma_path, "speed": speed, "new_seconds": n_new / fps, "refine": self.refine,
+                    "temperature": self.options.temperature_for(prior)}
+        return TaskResult(motion, model, result, metrics, settings, warnings)
 
     def speed_warnings(self, speed: float, join: float) -> list[str]:
         """Where the timing asks the root to go faster than a person: the path's speed

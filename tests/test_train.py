@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from priors.checkpoint import load_prior, read_checkpoint
+from priors.temperature import CANDIDATES, Trial, choose
 from priors.train import TrainConfig, log_path, state_path, train_prior, validation_nll
 
 from priorkit import TINY, tiny_dataset
@@ -15,7 +16,7 @@ from priorkit import TINY, tiny_dataset
 
 def config(**kw) -> TrainConfig:
     return TrainConfig(**{"epochs": 3, "window": 16, "stride": 1, "batch_size": 4, "lr": 3e-3, "seed": 3,
-                          "model": TINY, **kw})
+                          "calibration_seconds": 6.0, "model": TINY, **kw})
 
 
 @pytest.fixture(scope="module")
@@ -86,3 +87,24 @@ def test_resume_keeps_the_architecture_the_run_started_with(tmp_path):
     # a run started with one architecture is not resumed with another
     train_prior(tiny_dataset(), out, config(epochs=3, model=replace(TINY, absolute_root=True)), progress=False)
     assert load_prior(out).config.absolute_root is False
+
+
+def test_training_calibrates_the_sampling_temperature(trained):
+    """After training, rollouts from the training clips at every candidate temperature are
+    scored, and the one chosen is stored and used by the prior."""
+    prior = load_prior(trained)
+    cal = prior.metadata["temperature_calibration"]
+    found = [Trial(**t) for t in cal["trials"]]
+    assert cal["seconds"] == 6.0 and set(cal["clips"]) <= set(prior.metadata["train_clips"])
+    assert [t.temperature for t in found] == list(CANDIDATES)
+    assert all(0 < t.speed_min <= t.speed_max and math.isfinite(t.skating) for t in found)
+    assert prior.sample_temperature == choose(found).temperature
+
+
+def test_the_chosen_temperature_keeps_the_data_pace_without_skating():
+    found = [Trial(0.1, 0.2, 0.9, 1.0),   # freezes: a fifth of the data's speed
+             Trial(0.3, 0.6, 1.8, 1.2),
+             Trial(0.5, 0.8, 1.3, 2.5),   # closest pace, but feet slide
+             Trial(1.0, 5.0, 9.0, 3.0)]
+    assert choose(found).temperature == 0.3
+    assert choose([Trial(1.0, 5.0, 9.0, 3.0), Trial(2.0, 9.0, 20.0, 4.0)]).temperature == 1.0

@@ -168,6 +168,9 @@ def cmd_info(args: argparse.Namespace) -> int:
         "val_nll_median": next((r.get("val_nll_median") for r in hist
                                 if r["epoch"] == meta.get("selected_epoch")), None),
         "final_validation": {k: v for k, v in hist[-1].items() if k.startswith("val_")} if hist else None,
+        "sample_temperature": meta.get("sample_temperature"),
+        "semantic_attributes": sorted(meta.get("attribute_directions", {})) or None,
+        "style_heldout_accuracy": meta.get("style_classifier", {}).get("heldout_accuracy"),
     }
     if args.json:
         print(json.dumps(info, indent=2))
