@@ -11,9 +11,10 @@ clips named in its metadata, loaded from the data folder named there:
    completing each window from its first half (errors on the seen and unseen halves).
 2. Sampling quality: Fréchet distance between held-out windows and (a) the latent
    prior's samples, (b) rollouts of the autoregressive prior trained on the same data
-   (64 frames after 8 held-out frames of context, at temperatures 0.3 and 1), (c) Gaussian noise in the normalised
-   feature space, (d) training windows (a floor). Features: the 32-dimensional code
-   of a small convolutional autoencoder trained here on the training clips only.
+   (64 frames after 8 held-out frames of context, at its calibrated temperature and at
+   1), (c) Gaussian noise in the normalised feature space, (d) training windows (a
+   floor). Features: the 32-dimensional code of a small convolutional autoencoder
+   trained here on the training clips only.
 3. Semantic editing on 256 sampled motions: for each computed attribute and strength
    (standard deviations of W along the fitted direction), the mean of every attribute
    score and the mean horizontal root-path change (cm) against strength 0. The edited
@@ -171,7 +172,7 @@ def sampling(prior, ar_path: Path | None, train: Tensor, val: Tensor, n: int = 5
             # the two priors normalise with statistics of their own training sets
             ctx = val[torch.randint(len(val), (min(n, 256),), generator=g), :8]
             ctx = ar.normalizer.normalize(prior.normalizer.denormalize(ctx.double())).float()
-            for temperature in (0.3, 1.0):
+            for temperature in sorted({ar.sample_temperature, 1.0}):
                 t0 = time.perf_counter()
                 roll = ar.sample(ctx, prior.window, generator=g, temperature=temperature)
                 seconds = time.perf_counter() - t0

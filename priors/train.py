@@ -58,11 +58,14 @@ def log_path(out: Path) -> Path:
 
 
 def start_run(out: Path, force: bool, threads: int | None, seed: int) -> Path:
-    """Checks before a training run writes ``out``; sets threads and the seed. Returns the
-    training-state path (resume when it exists)."""
+    """Checks before a training run writes ``out``; sets threads and the seed; removes the
+    log of a run that a fresh one replaces. Returns the training-state path (resume when
+    it exists)."""
     sp = state_path(out)
     if out.exists() and not sp.exists() and not force:
         raise FileExistsError(f"{out} exists and has no training state to resume; pass force=True (--force) to retrain")
+    if not sp.exists():  # a fresh run: the log of a run that --force replaces goes with it
+        log_path(out).unlink(missing_ok=True)
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)

@@ -241,3 +241,27 @@ def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
     other = Skeleton(sk.names, parents, sk.offsets, sk.channels)
     with pytest.raises(CheckpointError, match="another hierarchy"):
         features_of(prior, Motion(other, m.rotations, m.root, m.fps))
+
+
+def test_std_floor_bounds_the_predicted_std_in_feature_units(x, tmp_path):
+    """With ``std_floor`` no dimension is predicted more sharply than the floor in the
+    features' own units, also after a checkpoint round trip; without it the trained tiny
+    prior is sharper than that somewhere."""
+    from dataclasses import replace
+
+    from priors.ccnet import CCNetPrior
+
+    trained = tiny_prior()
+    floored = CCNetPrior(trained.spec, trained.normalizer, trained.skeleton, replace(trained.config, std_floor=0.01),
+                         trained.metadata)
+    floored.load_state_dict(trained.state_dict())
+    save_prior(floored, tmp_path / "floored.pt")
+    loaded = load_prior(tmp_path / "floored.pt")
+    std = trained.normalizer.std[:trained.spec.pose_dim]
+    moving = trained.moving.bool()
+
+    def raw_std(p):
+        return (torch.exp(p.gaussian(x[5:], x[:5])[1]) * std)[:, moving]
+
+    assert float(raw_std(trained).min()) < 0.01
+    assert float(raw_std(loaded).min()) >= 0.01 * (1 - 1e-5)

@@ -73,6 +73,14 @@ def test_existing_checkpoint_without_state_is_not_overwritten(trained, tmp_path)
         train_prior(tiny_dataset(), out, config(), progress=False)
 
 
+def test_forced_retraining_starts_a_fresh_log(trained, tmp_path):
+    out = tmp_path / "again.pt"
+    out.write_bytes(trained.read_bytes())
+    log_path(out).write_text(log_path(trained).read_text())
+    train_prior(tiny_dataset(), out, config(epochs=1), progress=False, force=True)
+    assert [json.loads(line)["epoch"] for line in log_path(out).read_text().splitlines()] == [1]
+
+
 def test_resume_keeps_the_architecture_the_run_started_with(tmp_path):
     from dataclasses import replace
 

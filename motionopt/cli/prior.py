@@ -11,7 +11,7 @@ from . import add_common
 #: Defaults of the train-prior options that map onto ``TrainConfig`` and ``CCNetConfig``
 #: (written out so that the parser does not import torch).
 TRAIN_DEFAULTS = {"batch_size": 32, "noise_std": 0.03, "smooth_weight": 10.0, "channels": 64,
-                  "input_dropout": 0.1, "log_std_min": -5.0}
+                  "input_dropout": 0.1, "log_std_min": -5.0, "std_floor": 0.0}
 
 
 def register(sub) -> None:
@@ -38,6 +38,10 @@ def register(sub) -> None:
                    help=f"dropout on the input features (default {d['input_dropout']:g})")
     p.add_argument("--log-std-min", type=float, default=d["log_std_min"],
                    help=f"floor of the predicted log-std, normalised units (default {d['log_std_min']:g})")
+    p.add_argument("--std-floor", type=float, default=d["std_floor"],
+                   help="floor of the predicted std in the features' own units (6D rotation components, "
+                   "metres), so that dimensions nearly still in training are not scored as certain "
+                   f"(default {d['std_floor']:g}: none)")
     p.add_argument("--device", default="cpu", help="torch device to train on: cpu (default) or cuda")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
@@ -96,7 +100,7 @@ def train_config(args: argparse.Namespace):
     from priors.train import TrainConfig
 
     model = CCNetConfig(channels=args.channels, skip_channels=2 * args.channels, input_dropout=args.input_dropout,
-                        log_std_min=args.log_std_min)
+                        log_std_min=args.log_std_min, std_floor=args.std_floor)
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
                        noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model)
