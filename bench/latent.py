@@ -241,16 +241,17 @@ def semantic(prior) -> list[str]:
     classifier = style_classifier_of(prior.metadata)
     styles = [k for k in sorted(dirs) if k.startswith("style:")]
     if classifier is not None and styles:
-        lines += style_rows(prior, classifier, [dirs[k] for k in styles], w, base, std, base_root)
+        lines += style_rows(prior, classifier, [dirs[k] for k in styles], w, scorer, base_x, base, std, base_root)
     return lines
 
 
-def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Tensor, base: dict[str, Tensor],
-               std: dict[str, float], base_root: Tensor) -> list[str]:
+def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Tensor, scorer: AttributeScorer,
+               base_x: Tensor, base: dict[str, Tensor], std: dict[str, float], base_root: Tensor) -> list[str]:
     """Mean probability the style classifier gives each style's edited samples, by strength;
     the computed attributes and the root path are reported, not bounded (a style may move
-    them: old people walk slower)."""
-    scorer = AttributeScorer(prior)
+    them: old people walk slower). ``base_x``, ``base`` and ``base_root``: the unedited
+    samples of ``w``, their attribute scores and root paths."""
+    base_probs = classifier.probabilities(base_x)
     heldout = ("not measured (no held-out labelled clips)" if classifier.heldout_accuracy is None else
                f"{classifier.heldout_accuracy:.2f} on {classifier.heldout_windows} windows of held-out clips")
     lines = [f"   styles: probability the style classifier gives the style (linear softmax over window "
@@ -262,7 +263,7 @@ def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Ten
     for d in dirs:
         style = d.name.removeprefix("style:")
         probs, ratio, root = [], 0.0, 0.0
-        p0 = classifier.score(prior.generate(w), style)
+        p0 = base_probs[:, classifier.styles.index(style)]
         for s in STRENGTHS:
             x = prior.generate(edit_codes(w, d, s))
             p = classifier.score(x, style)

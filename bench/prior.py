@@ -42,13 +42,14 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from motionopt import bvh, metrics
+from motionopt import bvh
 from motionopt import rotations as R
 from motionopt.dataset import build_dataset
 from motionopt.features import RootStart, decode_positions, encode, to_model_motion
 from motionopt.motion import Motion
 from priors.checkpoint import load_prior, shipped_checkpoints
-from priors.temperature import window_speed_ratios
+from priors import temperature as calibration
+from priors.temperature import skating_against, window_speed_ratios
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "prior.txt"
@@ -189,19 +190,13 @@ def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, temperature: 
 
 def skating(prior, pos: Tensor, clip: Clip) -> float:
     """Foot skating (m/s) of positions, planted heights taken from the clip itself."""
-    cidx = prior.spec.contact_indices()
-    ref = torch.from_numpy(clip.motion.positions())
-    rest = metrics.rest_heights(ref, cidx, clip.start.ground)
-    return float(metrics.foot_skating(pos, prior.spec.fps, cidx, clip.start.ground, rest))
+    return skating_against(prior, pos, torch.from_numpy(clip.motion.positions()))
 
 
 def data_reference(prior, clips: list[Clip]) -> tuple[float, float]:
     """Mean joint speed and mean foot skating (m/s) of the held-out clips themselves:
     what rollouts are measured against."""
-    fps = prior.spec.fps
-    speed = float(torch.cat([metrics.joint_speed(torch.from_numpy(c.motion.positions()), fps).flatten()
-                             for c in clips]).mean())
-    return speed, statistics.mean(skating(prior, torch.from_numpy(c.motion.positions()), c) for c in clips)
+    return calibration.data_reference(prior, [torch.from_numpy(c.motion.positions()) for c in clips])
 
 
 # ---- timing ---------------------------------------------------------------------------

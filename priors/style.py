@@ -67,7 +67,7 @@ def style_classifier_of(metadata: dict) -> StyleClassifier | None:
 
 
 def labelled_windows(clips: dict[str, Tensor], window: int, stride: int) -> tuple[Tensor, list[str]]:
-    """Windows (N, window, D) of the clips whose names carry a style label, and their labels;
+    """Descriptors (N, F) of windows of the clips whose names carry a style label, and their labels;
     a clip shorter than ``window`` (but of at least a quarter of it) is one window of its own
     length, so Bandai's short dashes count too."""
     descs, labels = [], []

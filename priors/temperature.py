@@ -75,6 +75,13 @@ def skating_against(prior, pos: Tensor, reference: Tensor) -> float:
     return float(metrics.foot_skating(pos, prior.spec.fps, cidx, rest=metrics.rest_heights(reference, cidx)))
 
 
+def data_reference(prior, refs: Sequence[Tensor]) -> tuple[float, float]:
+    """Mean joint speed (m/s) of data clips' positions (T, J, 3), and their mean foot
+    skating (m/s, planted heights from each clip itself): what rollouts are measured against."""
+    speed = float(torch.cat([metrics.joint_speed(p, prior.spec.fps).flatten() for p in refs]).mean())
+    return speed, finite_mean(skating_against(prior, p, p) for p in refs)
+
+
 def finite_mean(values: Iterable[float]) -> float:
     """Mean of the finite values (skating is NaN for a motion whose feet never touch down)."""
     kept = [v for v in values if math.isfinite(v)]
@@ -92,8 +99,7 @@ def trials(prior, clips: Sequence[Tensor], temperatures: Sequence[float] = CANDI
     if not clips:
         raise ValueError(f"no clip of at least {CONTEXT_SECONDS:g} s to roll out from")
     refs = [positions_of(prior, x) for x in clips]
-    data_speed = float(torch.cat([metrics.joint_speed(p, fps).flatten() for p in refs]).mean())
-    data_skate = finite_mean(skating_against(prior, p, p) for p in refs)
+    data_speed, data_skate = data_reference(prior, refs)
     context = torch.stack([x[max(0, len(x) // 2 - c):][:c] for x in clips])
     k = len(temperatures)
     scale = torch.tensor(temperatures, dtype=context.dtype).repeat_interleave(len(clips))
