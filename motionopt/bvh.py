@@ -270,10 +270,10 @@ def _read_channels(path: str, encoding: str, max_frames: int | None) -> tuple[Sk
         motion_line = len(head)
         if not any(skeleton.channels):
             raise BVHError(path, motion_line, "the hierarchy has no channels: there is no motion to read")
-        n_frames = _frame_count(f, path, motion_line + 1, max_frames)
-        frame_time = _frame_time(f, path, motion_line + 2)
-        lines = _frame_lines(f, path, n_frames, motion_line + 3)
-    return skeleton, _parse_frames(lines, skeleton, path, motion_line + 3), frame_time
+        n_frames, count_line = _frame_count(f, path, motion_line + 1, max_frames)
+        frame_time, time_line = _frame_time(f, path, count_line + 1)
+        lines = _frame_lines(f, path, n_frames, time_line + 1)
+    return skeleton, _parse_frames(lines, skeleton, path, time_line + 1), frame_time
 
 
 def _read_head(f: TextIO, path: str) -> list[str]:
@@ -290,19 +290,25 @@ def _read_head(f: TextIO, path: str) -> list[str]:
     return head
 
 
-def _header(f: TextIO, path: str, line_no: int, key: str) -> str:
-    """The text after ``key`` on the next line, which is line ``line_no``."""
+def _header(f: TextIO, path: str, line_no: int, key: str) -> tuple[str, int]:
+    """The text after ``key`` on the next non-blank line (line ``line_no`` or later), and
+    that line's number. Blank lines before a header are skipped, as bvhio and Blender do:
+    some exporters write one between ``MOTION`` and ``Frames:``."""
+    after = line_no - 1  # the last line with text
     line = f.readline()
-    if not line.strip() and not any(rest.strip() for rest in f):
-        raise BVHError(path, line_no - 1, f"file ends early: expected '{key}'")
+    while line and not line.strip():
+        line, line_no = f.readline(), line_no + 1
+    if not line:
+        raise BVHError(path, after, f"file ends early: expected '{key}'")
     line = " ".join(line.split())  # "Frame\tTime:" reads as "Frame Time:"
     if not line.startswith(key):
         raise BVHError(path, line_no, f"expected '{key}', found {_show(line)}")
-    return line[len(key):].strip()
+    return line[len(key):].strip(), line_no
 
 
-def _frame_count(f: TextIO, path: str, line_no: int, max_frames: int | None) -> int:
-    text = _header(f, path, line_no, "Frames:")
+def _frame_count(f: TextIO, path: str, line_no: int, max_frames: int | None) -> tuple[int, int]:
+    """The declared frame count and the number of the line that holds it."""
+    text, line_no = _header(f, path, line_no, "Frames:")
     n_frames = _count(text)
     if n_frames is None:
         raise BVHError(path, line_no, f"expected a whole number of frames (at most {_MAX_COUNT_DIGITS} digits), "
@@ -312,11 +318,12 @@ def _frame_count(f: TextIO, path: str, line_no: int, max_frames: int | None) -> 
     if max_frames is not None and n_frames > max_frames:
         raise BVHError(path, line_no, f"the file declares {n_frames} frames, more than the limit of {max_frames} "
                                       "(--max-frames); raise the limit to read it")
-    return n_frames
+    return n_frames, line_no
 
 
-def _frame_time(f: TextIO, path: str, line_no: int) -> float:
-    text = _header(f, path, line_no, "Frame Time:")
+def _frame_time(f: TextIO, path: str, line_no: int) -> tuple[float, int]:
+    """The frame time in seconds and the number of the line that holds it."""
+    text, line_no = _header(f, path, line_no, "Frame Time:")
     try:
         frame_time = float(text)
     except ValueError:
@@ -324,7 +331,7 @@ def _frame_time(f: TextIO, path: str, line_no: int) -> float:
     if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:  # NaN fails this too
         raise BVHError(path, line_no, f"frame time must be a positive number of seconds from {MIN_FRAME_TIME:g} "
                                       f"to {MAX_FRAME_TIME:g}, got {_show(text)}")
-    return frame_time
+    return frame_time, line_no
 
 
 def _frame_lines(f: TextIO, path: str, n_frames: int, first: int) -> list[str]:

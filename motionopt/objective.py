@@ -241,14 +241,12 @@ class PoseFidelityTerm(Term):
 class JointPositionTerm(Term):
     """World position targets for one joint at chosen global frames.
 
-    ``targets`` maps a frame index to an (x, y, z) target in metres. With ``hard`` the
-    solver treats the targets as equality constraints (nlopt) instead of a penalty.
+    ``targets`` maps a frame index to an (x, y, z) target in metres.
     """
 
     joint: int
     targets: dict[int, np.ndarray]
     sigma: float = 0.01
-    hard: bool = False
     name: str = "joint_position"
 
     def active(self, frames: np.ndarray) -> bool:

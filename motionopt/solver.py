@@ -21,7 +21,7 @@ from torch import Tensor
 
 from . import rotations as R
 from .features import RootStart, advance, decode_positions
-from .objective import JointPositionTerm, MAPObjective, NonFiniteTermError
+from .objective import MAPObjective, NonFiniteTermError
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ class PSOOptions:
 @dataclass
 class SolverOptions:
     """How to solve. ``method`` is the local optimiser: 'scipy' (L-BFGS-B), 'nlopt'
-    (LD_LBFGS; with hard constraints, AUGLAG_EQ around it), 'torch' (torch.optim.LBFGS)
+    (LD_LBFGS), 'torch' (torch.optim.LBFGS)
     or 'adam' (plain first-order baseline). ``time_budget`` (seconds per window) stops
     any of them when spent (for comparisons at equal time)."""
 
@@ -210,7 +210,6 @@ class _Window:
         self.best_terms: dict[str, float] = {}
         self.first_terms: dict[str, float] | None = None
         self.seen: dict[int, float] = {}   # objective of every evaluated point, by hash
-        self.hard = [t for t in objective.terms if isinstance(t, JointPositionTerm) and t.hard and t.active(frames)]
         self._base_rot: Tensor | None = None
         self._whiten: Tensor | None = None
         self.contacts: Tensor | None = None
@@ -266,11 +265,8 @@ class _Window:
         return st
 
     def energies(self, v: Tensor) -> dict[str, Tensor]:
-        """Every active term's energy but the hard constraints'."""
-        e = self.obj.energies(self.state(v))
-        for term in self.hard:
-            e.pop(term.name, None)
-        return e
+        """Every active term's energy."""
+        return self.obj.energies(self.state(v))
 
     def _check(self, e: dict[str, Tensor]) -> None:
         for name, val in e.items():
@@ -283,12 +279,8 @@ class _Window:
         v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
         st = self.state(v)
         e = self.obj.energies(st)
-        for term in self.hard:
-            e.pop(term.name, None)
         self._check(e)
         total = sum(e.values())
-        if self.hard:  # nlopt asks for the constraints at the same point next: one pass for both
-            self._constraints = (v_np.tobytes(), *self._residuals_and_jacobian(st, v))
         (g,) = torch.autograd.grad(total, v)
         self.nfev += 1
         terms = {k: float(t.detach()) for k, t in e.items()}
@@ -308,20 +300,6 @@ class _Window:
         """Every term's value at ``v_np`` (no gradient)."""
         with torch.no_grad():
             return {k: float(t) for k, t in self.energies(torch.tensor(v_np, dtype=torch.float32)).items()}
-
-    def _residuals_and_jacobian(self, st, v: Tensor) -> tuple[np.ndarray, np.ndarray]:
-        r = torch.cat([t.residuals(st).reshape(-1) for t in self.hard])
-        rows = [torch.autograd.grad(ri, v, retain_graph=True)[0] for ri in r]
-        jac = torch.stack(rows) if rows else torch.zeros(0, len(v))
-        return r.detach().double().numpy(), jac.double().numpy()
-
-    def constraint_residuals(self, v_np: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Hard constraint residuals (m,) and their Jacobian (m, n)."""
-        cached = getattr(self, "_constraints", None)
-        if cached is not None and cached[0] == v_np.tobytes():
-            return cached[1], cached[2]
-        v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
-        return self._residuals_and_jacobian(self.state(v), v)
 
 
 def _pso_rollout(win: _Window, prior, context: Tensor, first: int, unknown: Tensor, base_noise: Tensor,
@@ -426,25 +404,8 @@ def _local_solve(win: _Window, v0: np.ndarray, opts: SolverOptions,
                 raise nlopt.ForcedStop
             return val
 
-        if win.hard:
-            opt = nlopt.opt(nlopt.AUGLAG_EQ, n)
-            local.set_ftol_rel(opts.ftol)
-            local.set_maxeval(opts.max_iter)
-            opt.set_local_optimizer(local)
-
-            def h(result, v, grad):
-                r, jac = win.constraint_residuals(v)
-                result[:] = r
-                if grad.size > 0:
-                    grad[:] = jac
-
-            with torch.no_grad():
-                m = sum(t.residuals(win.state(torch.from_numpy(v0).float())).numel() for t in win.hard)
-            opt.add_equality_mconstraint(h, np.full(m, 1e-4))
-            opt.set_maxeval(opts.max_iter * 10)
-        else:
-            opt = local
-            opt.set_maxeval(opts.max_iter)
+        opt = local
+        opt.set_maxeval(opts.max_iter)
         opt.set_min_objective(f)
         opt.set_ftol_rel(opts.ftol)
         try:

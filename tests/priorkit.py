@@ -14,8 +14,8 @@ import torch
 from motionopt import bvh
 from motionopt.dataset import MotionDataset, build_dataset
 from priors.ccnet import CCNetConfig, CCNetPrior
+from clips import DATA
 
-DATA = Path(__file__).parent / "data"
 #: Small enough to train in a second, deep enough to have a receptive field of 8 frames.
 TINY = CCNetConfig(channels=16, skip_channels=16, dilations=(1, 2, 4), input_dropout=0.0)
 

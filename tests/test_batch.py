@@ -16,10 +16,10 @@ import pytest
 from motionopt import bvh
 from motionopt.batch import MANIFEST, BatchError, BatchPlan, run_batch, sha256
 from motionopt.cli import main
+from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
-from priorkit import DATA
 
-CLIPS = ("bandai-walk-normal-001.bvh", "cmu-martial-03-step.bvh", "cmu-salsa-01-steps.bvh")
+CLIPS = (BANDAI_30, CMU_120, CMU_60)
 
 
 @pytest.fixture

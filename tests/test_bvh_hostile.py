@@ -23,8 +23,9 @@ from scipy.spatial.transform import Rotation
 from motionopt import bvh, rotations as R
 from motionopt.bvh import BVHError
 from motionopt.motion import Motion, unit_scale
+from clips import DATA, CMU_120
 
-CMU = Path(__file__).parent / "data" / "cmu-martial-03-step.bvh"
+CMU = DATA / CMU_120
 TIME_LIMIT_S = 10.0  # per read; a hang must fail the test, not stall CI
 
 

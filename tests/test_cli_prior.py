@@ -11,7 +11,8 @@ from motionopt.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
 from priors.score import score_motion
 
-from priorkit import DATA, cmu_clip, cmu_clips, tiny_prior
+from priorkit import cmu_clip, cmu_clips, tiny_prior
+from clips import DATA, CMU_60, BANDAI_30
 
 
 @pytest.fixture(scope="module")
@@ -90,8 +91,8 @@ def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_pat
     assert "lacks lThigh, lShin, lFoot" in err and "train-prior" in err and len(err.splitlines()) == 1
 
 
-@pytest.mark.parametrize("clip, expected", [("cmu-salsa-01-steps.bvh", "cmu-ccnet.pt"),
-                                             ("bandai-walk-normal-001.bvh", "bandai-locomotion-ccnet.pt")])
+@pytest.mark.parametrize("clip, expected", [(CMU_60, "cmu-ccnet.pt"),
+                                             (BANDAI_30, "bandai-locomotion-ccnet.pt")])
 def test_score_picks_the_shipped_prior_of_the_skeleton(capsys, clip, expected):
     if not (CHECKPOINT_DIR / expected).exists() or not (DATA / clip).exists():
         pytest.skip(f"needs the shipped {expected} and tests/data/{clip}")

@@ -19,12 +19,12 @@ from motionopt.motion import Motion
 from motionopt.plot import body_root
 from priors.checkpoint import CHECKPOINT_DIR
 from problems.path_follow import read_path_csv
+from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
-from priorkit import DATA
 
-WALK = DATA / "bandai-walk-normal-001.bvh"    # 30 fps, 60 frames, Bandai skeleton
-MARTIAL = DATA / "cmu-martial-03-step.bvh"    # 120 fps, 240 frames, CMU skeleton
-SALSA = DATA / "cmu-salsa-01-steps.bvh"       # 60 fps, 150 frames, CMU skeleton
+WALK = DATA / BANDAI_30    # 30 fps, 60 frames, Bandai skeleton
+MARTIAL = DATA / CMU_120    # 120 fps, 240 frames, CMU skeleton
+SALSA = DATA / CMU_60       # 60 fps, 150 frames, CMU skeleton
 TINY = ("--iterations", "3", "--pso-particles", "4", "--pso-iterations", "1")
 COMMANDS = ("path-follow", "denoise", "inbetween", "complete", "edit")
 

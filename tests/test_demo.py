@@ -1,29 +1,36 @@
-"""The offline demo end to end (small budgets), and its BVH files read by an independent parser."""
+"""The offline demo end to end (small budgets) on motion it generates itself, and its BVH
+files read by an independent parser."""
 from pathlib import Path
 
 import bvhio
+import numpy as np
 import pytest
 
 from motionopt import bvh
 from motionopt.cli import main
-from motionopt.demo import run_demo
+from motionopt.demo import FILES, demo_inputs, run_demo
 
 
 @pytest.fixture(scope="module")
 def demo_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("demo")
     summary = run_demo(out, fast=True)
-    assert [s.name for s in summary.steps] == ["path following", "denoising", "in-betweening"]
+    assert [s.name for s in summary.steps] == ["inputs", "path following", "denoising", "in-betweening",
+                                               "completion", "spatial edit", "latent edit"]
     return out
 
 
+def test_the_package_ships_no_motion_files() -> None:
+    package = Path(bvh.__file__).parent
+    assert not [p for p in package.rglob("*") if p.suffix.lower() in (".bvh", ".csv")]
+
+
 def test_demo_writes_every_file(demo_dir: Path) -> None:
-    for name in ("path-follow.bvh", "path.csv", "path-follow.png", "noisy.bvh", "denoised.bvh",
-                 "denoise-trajectory.png", "inbetween.bvh", "inbetween.png", "summary.json"):
+    for name in FILES:
         assert (demo_dir / name).stat().st_size > 0, name
 
 
-@pytest.mark.parametrize("name", ["path-follow.bvh", "noisy.bvh", "denoised.bvh", "inbetween.bvh"])
+@pytest.mark.parametrize("name", [n for n in FILES if n.endswith(".bvh")])
 def test_bvh_outputs_open_in_bvhio(demo_dir: Path, name: str) -> None:
     ours = bvh.load(demo_dir / name)
     other = bvhio.readAsBvh(str(demo_dir / name))
@@ -36,3 +43,12 @@ def test_demo_refuses_to_overwrite(demo_dir: Path, capsys) -> None:
     assert main(["demo", "--out-dir", str(demo_dir), "--fast", "-q"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--force" in err[0]
+
+
+def test_the_generated_inputs_are_repeatable_and_move() -> None:
+    (walk, moves), (walk2, _) = demo_inputs(), demo_inputs()
+    assert walk.rotations.tobytes() == walk2.rotations.tobytes()
+    speed = np.linalg.norm(np.diff(walk.root[:, [0, 2]], axis=0), axis=1).mean() * walk.fps
+    assert speed > 0.3  # a walk, not a figure standing still
+    feet = moves.positions()[:, [moves.skeleton.index("lFoot"), moves.skeleton.index("rFoot")], 1]
+    assert abs(feet.min()) < 0.05  # on the floor

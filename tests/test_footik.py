@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,9 +13,11 @@ from motionopt.features import contact_labels, default_spec, estimate_ground, to
 from motionopt.footik import Leg, clean_contacts, find_legs
 from motionopt.kinematics import fk
 from motionopt.motion import Motion
+from clips import CMU_120, DATA, shared_excerpt
 
-DATA = Path(__file__).parent / "data"
-CLIPS = ("bandai-walk-normal-001.bvh", "cmu-martial-03-step.bvh")
+#: Real capture with planted feet (mocap's own feet barely slide; generated motion's do):
+#: 2 s of a Bandai walk and 2 s of CMU martial arts (standing, then one step).
+REAL = {"bandai-walk": ("bandai/dataset-1_walk_normal_001.bvh", 30, 90), "cmu-step": ("cmu/martial/03.bvh", 336, 576)}
 DRIFT = np.array([0.3, 0.0, 0.1])  # m/s: the root drifts at 0.32 m/s, so planted feet slide
 
 
@@ -40,12 +41,9 @@ def slide(motion: Motion, velocity: np.ndarray) -> Motion:
     return motion.with_frames(motion.rotations, motion.root + t * velocity)
 
 
-@pytest.fixture(scope="module", params=CLIPS)
+@pytest.fixture(scope="module", params=list(REAL))
 def case(request) -> Case:
-    path = DATA / request.param
-    if not path.exists():
-        pytest.skip(f"{path.name} not in tests/data")
-    motion = bvh.load(path)
+    motion = shared_excerpt(*REAL[request.param])
     spec = default_spec(motion.skeleton)
     clean = to_model_motion(motion, spec)
     idx = [clean.skeleton.index(n) for n in spec.contact_joints]
@@ -185,7 +183,7 @@ def test_no_leg_is_stretched_beyond_the_limit(case):
 def straightened(frames: slice) -> tuple[Motion, list[str], Leg]:
     """The CMU excerpt, slid, with the left knee straight over ``frames``; its contact
     joints and its left leg."""
-    motion = bvh.load(DATA / "cmu-martial-03-step.bvh")
+    motion = bvh.load(DATA / CMU_120)
     spec = default_spec(motion.skeleton)
     clean = to_model_motion(motion, spec)
     sk = clean.skeleton
@@ -224,7 +222,7 @@ def test_a_leg_straight_throughout_is_refused_when_it_must_bend():
     (["lHand", "neck"], np.ones((60, 2)), "share joints"),
 ])
 def test_errors_say_what_to_pass(joints, contacts, error):
-    motion = bvh.load(DATA / "cmu-martial-03-step.bvh")
+    motion = bvh.load(DATA / CMU_120)
     clean = to_model_motion(motion, default_spec(motion.skeleton))
     with pytest.raises((ValueError, KeyError), match=error):
         clean_contacts(clean, joints, contacts)

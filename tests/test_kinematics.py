@@ -1,7 +1,6 @@
 """Forward kinematics against a plain numpy reference, and its gradients."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from motionopt import bvh
 from motionopt.kinematics import fk
+from clips import DATA, CMU_120, BANDAI_30
 
-DATA = Path(__file__).parent / "data"
 
 
 def numpy_fk(parents, quats, root, local_t):
@@ -32,7 +31,7 @@ def numpy_fk(parents, quats, root, local_t):
     return pos, grot
 
 
-@pytest.mark.parametrize("name", ["cmu-martial-03-step.bvh", "bandai-walk-normal-001.bvh"])
+@pytest.mark.parametrize("name", [CMU_120, BANDAI_30])
 def test_fk_matches_numpy_reference_on_real_clips(name):
     m = bvh.load(DATA / name)
     local_t = m.local_translations()

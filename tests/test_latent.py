@@ -22,7 +22,8 @@ from priors.train_latent import LatentTrainConfig, log_path, state_path, train_l
 from motionopt.rotations import quat_multiply, yaw_quat
 from problems.latent import LatentOptions, anchor_root, complete, fuse, infill, reconstruct
 
-from priorkit import DATA, cmu_clips, tiny_dataset
+from priorkit import cmu_clips, tiny_dataset
+from clips import DATA
 
 WINDOW = 32
 

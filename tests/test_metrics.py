@@ -2,14 +2,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 import torch
 
 from motionopt import bvh, metrics
+from clips import DATA, CMU_120
 
-CLIP = Path(__file__).parent / "data" / "cmu-martial-03-step.bvh"
+CLIP = DATA / CMU_120
 FEET = ["rFoot", "lFoot"]
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 import os
 import stat
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,11 +11,11 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from motionopt import bvh
 from motionopt.motion import Motion
+from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
-DATA = Path(__file__).parent / "data"
-MARTIAL = DATA / "cmu-martial-03-step.bvh"
-SALSA = DATA / "cmu-salsa-01-steps.bvh"
-BANDAI = DATA / "bandai-walk-normal-001.bvh"
+MARTIAL = DATA / CMU_120
+SALSA = DATA / CMU_60
+BANDAI = DATA / BANDAI_30
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from PIL import Image
 from motionopt import bvh
 from motionopt import plot as P
 from motionopt.cli import main
+from clips import DATA
 
-DATA = Path(__file__).parent / "data"
 
 
 def _clip(pattern: str) -> Path:

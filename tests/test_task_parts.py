@@ -2,7 +2,6 @@
 features, noise estimation and per-joint filtering, limb IK, in-betweening metrics."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,8 +18,8 @@ from problems.edit import reach
 from problems.inbetween import velocity_handoff
 
 from priorkit import tiny_prior
+from clips import DATA
 
-DATA = Path(__file__).parent / "data"
 
 
 @pytest.fixture(scope="module")

@@ -105,7 +105,10 @@ def test_training_calibrates_the_sampling_temperature(trained):
     found = [Trial(**t) for t in cal["trials"]]
     assert cal["seconds"] == 6.0 and set(cal["clips"]) <= set(prior.metadata["train_clips"])
     assert [t.temperature for t in found] == list(CANDIDATES)
-    assert all(0 < t.speed_min <= t.speed_max and math.isfinite(t.skating) for t in found)
+    assert all(0 < t.speed_min <= t.speed_max for t in found)
+    # skating is NaN where a tiny prior's rollouts never put a foot down (documented)
+    assert all(math.isnan(t.skating) or t.skating >= 0 for t in found)
+    assert any(math.isfinite(t.skating) for t in found)
     assert prior.sample_temperature == choose(found).temperature
 
 

@@ -16,8 +16,8 @@ from priors.checkpoint import CHECKPOINT_DIR, load_prior
 from problems.edit import JointTarget, SpatialEdit
 from problems.inbetween import Inbetween
 from problems.path_follow import PathFollow
+from clips import DATA, CMU_120, BANDAI_30
 
-from priorkit import DATA
 
 TINY = ("--iterations", "3", "--pso-particles", "4", "--pso-iterations", "1")
 
@@ -32,7 +32,7 @@ def prior(name: str):
 def walk():
     """One second of the Bandai walk (30 fps), its prior, and the line it walks along:
     its hips' last ground position and heading."""
-    motion = bvh.load(DATA / "bandai-walk-normal-001.bvh")[:30]
+    motion = bvh.load(DATA / BANDAI_30)[:30]
     ground = motion.positions()[:, motion.skeleton.index("Hips"), [0, 2]]
     heading = (ground[-1] - ground[-10]) / np.linalg.norm(ground[-1] - ground[-10])
     return motion, prior("bandai-locomotion-ccnet.pt"), ground[-1], heading
@@ -140,7 +140,7 @@ def test_edit_within_reach_has_no_warnings(walk):
 @pytest.fixture(scope="module")
 def martial():
     """One second of the CMU martial-arts clip (120 fps) and its prior."""
-    return bvh.load(DATA / "cmu-martial-03-step.bvh")[:121], prior("cmu-ccnet.pt")
+    return bvh.load(DATA / CMU_120)[:121], prior("cmu-ccnet.pt")
 
 
 def test_inbetween_gap_too_far_to_cover_names_the_gap_and_the_speed(martial):

@@ -18,8 +18,8 @@ from priors.checkpoint import CHECKPOINT_DIR, CheckpointError, load_prior, read_
 from problems.common import MAX_FILE_BYTES
 from problems.edit import MAX_TARGETS, MAX_TARGETS_BYTES, load_targets
 from problems.path_follow import MAX_NEW_SECONDS, MAX_PATH_POINTS, read_path_csv
+from clips import DATA, BANDAI_30
 
-from priorkit import DATA
 
 SHIPPED = CHECKPOINT_DIR / "cmu-ccnet.pt"
 
@@ -190,7 +190,7 @@ def test_untrusted_checkpoint_fails_the_command_in_one_line(capsys, tmp_path):
     evil = tmp_path / "evil.pt"
     torch.save({"spec": RunsCode(marker)}, evil)
     out = tmp_path / "out.bvh"
-    rc = main(["denoise", str(DATA / "bandai-walk-normal-001.bvh"), "--prior", str(evil), "--out", str(out)])
+    rc = main(["denoise", str(DATA / BANDAI_30), "--prior", str(evil), "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and err[0].startswith("motionopt denoise: error: ") and "refused" in err[0]
     assert not marker.exists() and not out.exists()
@@ -352,7 +352,7 @@ def test_targets_file_too_large_is_refused_before_reading(tmp_path):
 ])
 def test_bad_user_files_fail_the_command_in_one_line(capsys, tmp_path, command, flag, name, content):
     f = write(tmp_path / name, content)
-    rc = main([command, str(DATA / "bandai-walk-normal-001.bvh"), flag, str(f), "--out", str(tmp_path / "o.bvh")])
+    rc = main([command, str(DATA / BANDAI_30), flag, str(f), "--out", str(tmp_path / "o.bvh")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and err[0].startswith(f"motionopt {command}: error: {f}"), err
     assert not (tmp_path / "o.bvh").exists()
