@@ -1,4 +1,4 @@
-"""Pictures and the render/plot commands, on the real clips shipped in tests/data."""
+"""Pictures and the render/plot commands, on clips generated in the CMU and Bandai layouts."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,20 +10,12 @@ from PIL import Image
 from motionopt import bvh
 from motionopt import plot as P
 from motionopt.cli import main
-from clips import DATA
-
-
-
-def _clip(pattern: str) -> Path:
-    found = sorted(DATA.glob(pattern))
-    if not found:
-        pytest.skip(f"no {pattern} clip in tests/data")
-    return found[0]
+from clips import BANDAI_30, CMU_120, DATA
 
 
 @pytest.fixture(scope="module")
 def walk_path() -> Path:
-    return _clip("bandai-walk*.bvh")  # 22 joints with joint_Root above the hips, 30 fps
+    return DATA / BANDAI_30  # 22 joints with joint_Root above the hips, 30 fps
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +25,7 @@ def walk(walk_path):
 
 @pytest.fixture(scope="module")
 def martial_path() -> Path:
-    return _clip("cmu-martial*.bvh")  # 43 joints with fingers and eyes, 120 fps, centimetres
+    return DATA / CMU_120  # 43 joints with fingers and eyes, 120 fps, centimetres
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +74,9 @@ def test_stick_figure_leaves_fingers_and_eyes_out(martial):
 
 
 def test_camera_sees_a_walk_from_the_side(walk):
-    sf = P.stick_figure(walk)
+    # carried along x at 1 m/s, so that the walk goes one way (the generated walk is slow)
+    t = np.arange(walk.num_frames)[:, None] / walk.fps
+    sf = P.stick_figure(walk.with_frames(walk.rotations, walk.root + t * [1.0, 0.0, 0.0], walk.translations))
     cam = P.Camera.beside(sf)
     travel = sf.points[-1, 0] - sf.points[0, 0]
     assert travel @ cam.forward > 0.95 * np.linalg.norm(travel[[0, 2]])  # walks to the right
