@@ -120,6 +120,12 @@ def shared_excerpt(relative: str, start: int, stop: int) -> Motion:
     return bvh.load(path)[start:stop]
 
 
+def slide(motion: Motion, velocity: np.ndarray | list[float]) -> Motion:
+    """The motion with its root carried along at a constant horizontal velocity (m/s)."""
+    t = np.arange(motion.num_frames)[:, None] / motion.fps
+    return motion.with_frames(motion.rotations, motion.root + t * np.asarray(velocity), motion.translations)
+
+
 def _write_all() -> Path:
     folder = Path(tempfile.mkdtemp(prefix="motionopt-test-clips-"))
     atexit.register(shutil.rmtree, folder, ignore_errors=True)

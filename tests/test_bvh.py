@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clips import DATA
+from clips import BANDAI_30, CMU_120, DATA
 from motionopt import bvh
 from motionopt.bvh import BVHError
 
@@ -178,7 +178,7 @@ def test_generated_clips_round_trip(path, tmp_path):
 
 
 def test_generated_clips_have_the_layouts_of_real_files():
-    cmu, bandai = bvh.load(DATA / "cmu-like-120fps.bvh"), bvh.load(DATA / "bandai-like-30fps.bvh")
+    cmu, bandai = bvh.load(DATA / CMU_120), bvh.load(DATA / BANDAI_30)
     assert cmu.skeleton.num_joints == 43 and cmu.fps == 120.0 and cmu.source_unit == "cm"
     assert {"leftEye", "rThumb2", "lPinky1"} <= set(cmu.skeleton.names)
     assert all(c == ("Zrotation", "Xrotation", "Yrotation") for c in cmu.skeleton.channels[1:])

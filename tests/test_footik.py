@@ -13,7 +13,7 @@ from motionopt.features import contact_labels, default_spec, estimate_ground, to
 from motionopt.footik import Leg, clean_contacts, find_legs
 from motionopt.kinematics import fk
 from motionopt.motion import Motion
-from clips import CMU_120, DATA, shared_excerpt
+from clips import CMU_120, DATA, shared_excerpt, slide
 
 #: Real capture with planted feet (mocap's own feet barely slide; generated motion's do):
 #: 2 s of a Bandai walk and 2 s of CMU martial arts (standing, then one step).
@@ -33,12 +33,6 @@ class Case:
     @property
     def idx(self) -> list[int]:
         return [self.clean.skeleton.index(n) for n in self.joints]
-
-
-def slide(motion: Motion, velocity: np.ndarray) -> Motion:
-    """The motion with its root carried along at a constant horizontal velocity (m/s)."""
-    t = np.arange(motion.num_frames)[:, None] / motion.fps
-    return motion.with_frames(motion.rotations, motion.root + t * velocity)
 
 
 @pytest.fixture(scope="module", params=list(REAL))

@@ -10,7 +10,7 @@ from PIL import Image
 from motionopt import bvh
 from motionopt import plot as P
 from motionopt.cli import main
-from clips import BANDAI_30, CMU_120, DATA
+from clips import BANDAI_30, CMU_120, DATA, slide
 
 
 @pytest.fixture(scope="module")
@@ -75,8 +75,7 @@ def test_stick_figure_leaves_fingers_and_eyes_out(martial):
 
 def test_camera_sees_a_walk_from_the_side(walk):
     # carried along x at 1 m/s, so that the walk goes one way (the generated walk is slow)
-    t = np.arange(walk.num_frames)[:, None] / walk.fps
-    sf = P.stick_figure(walk.with_frames(walk.rotations, walk.root + t * [1.0, 0.0, 0.0], walk.translations))
+    sf = P.stick_figure(slide(walk, [1.0, 0.0, 0.0]))
     cam = P.Camera.beside(sf)
     travel = sf.points[-1, 0] - sf.points[0, 0]
     assert travel @ cam.forward > 0.95 * np.linalg.norm(travel[[0, 2]])  # walks to the right
