@@ -31,8 +31,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import prior as bench_prior  # noqa: E402  (bench/prior.py)
 
-from motionopt.cli import build_parser  # noqa: E402
-from motionopt.cli.prior import train_config, train_metadata  # noqa: E402
+from motionopt.app.cli import build_parser  # noqa: E402
+from motionopt.app.cli.prior import train_config, train_metadata  # noqa: E402
 from priors.temperature import window_speed_ratios  # noqa: E402
 
 #: Settings tried: name -> train-prior options beyond those of the checkpoint it is like.

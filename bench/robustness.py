@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from motionopt import bvh  # noqa: E402
-from motionopt.batch import BatchPlan, find_inputs, run_batch  # noqa: E402
+from motionopt.app.batch import BatchPlan, find_inputs, run_batch  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
 
 CMU = ROOT.parent / "shared" / "data" / "cmu"

@@ -1,4 +1,4 @@
-"""Inversion of a latent prior (``priors.protocol.LatentMotionPrior``): from motion features
+"""Inversion of a latent prior (``motionopt.prior.LatentMotionPrior``): from motion features
 to W+ codes and back, for clips of any length.
 
 1. Encoder initialisation: the clip is cut into windows of the prior's length that

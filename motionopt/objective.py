@@ -17,6 +17,7 @@ from torch import Tensor
 
 from .features import FeatureSpec, RootStart, decode_matrices
 from .kinematics import fk_matrices
+from .prior import MotionPrior
 from .rotations import quat_to_matrix
 from .skeleton import Skeleton
 
@@ -332,7 +333,7 @@ class MAPObjective:
     fidelity for them. 0.01 (about half a degree) keeps those entries tight but finite.
     """
 
-    prior: object
+    prior: MotionPrior
     skeleton: Skeleton
     terms: list[Term] = field(default_factory=list)
     prior_weight: float = 1.0

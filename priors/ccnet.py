@@ -86,7 +86,7 @@ class GatedResidualBlock(nn.Module):
 
 
 class CCNetPrior(nn.Module):
-    """The causal-convolution prior; implements ``priors.protocol.MotionPrior``."""
+    """The causal-convolution prior; implements ``motionopt.prior.MotionPrior``."""
 
     def __init__(self, spec: FeatureSpec, normalizer: Normalizer, skeleton: Skeleton,
                  config: CCNetConfig = CCNetConfig(), metadata: dict | None = None):

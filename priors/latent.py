@@ -222,7 +222,7 @@ class Encoder(nn.Module):
 
 
 class LatentPrior(nn.Module):
-    """The latent prior; implements ``priors.protocol.LatentMotionPrior``.
+    """The latent prior; implements ``motionopt.prior.LatentMotionPrior``.
 
     Buffers ``w_mean``, ``w_components`` (rows: principal directions of W, largest first)
     and ``w_scales`` (their standard deviations) describe the mapping network's output

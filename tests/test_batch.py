@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from motionopt import bvh
-from motionopt.batch import MANIFEST, BatchError, BatchPlan, run_batch, sha256
-from motionopt.cli import main
+from motionopt.app.batch import MANIFEST, BatchError, BatchPlan, run_batch, sha256
+from motionopt.app.cli import main
 from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
 

@@ -1,4 +1,4 @@
-"""``motionopt convert`` and ``motionopt info`` through ``motionopt.cli.main``."""
+"""``motionopt convert`` and ``motionopt info`` through ``motionopt.app.cli.main``."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from motionopt import bvh
-from motionopt.cli import main
+from motionopt.app.cli import main
 from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
 MARTIAL = DATA / CMU_120

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from motionopt import bvh
-from motionopt.cli import main
+from motionopt.app.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, read_checkpoint, save_prior
 from priors.score import score_motion
 
@@ -150,8 +150,8 @@ def test_train_prior_command_writes_a_usable_checkpoint(capsys, tmp_path):
 def test_train_prior_records_model_options_and_its_command_reproduces_them(capsys, tmp_path):
     import shlex
 
-    from motionopt.cli import build_parser
-    from motionopt.cli.prior import train_config
+    from motionopt.app.cli import build_parser
+    from motionopt.app.cli.prior import train_config
 
     clips = cmu_clips()[:3]
     out = tmp_path / "small.pt"
@@ -169,7 +169,7 @@ def test_train_prior_records_model_options_and_its_command_reproduces_them(capsy
 
 
 def test_train_prior_defaults_are_the_configs_defaults():
-    from motionopt.cli.prior import TRAIN_DEFAULTS
+    from motionopt.app.cli.prior import TRAIN_DEFAULTS
     from priors.ccnet import CCNetConfig
     from priors.train import TrainConfig
 

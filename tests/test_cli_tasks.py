@@ -13,7 +13,7 @@ import torch
 
 from motionopt import bvh
 from motionopt.rotations import axis_angle_to_quat, quat_multiply
-from motionopt.cli import main
+from motionopt.app.cli import main
 from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
 from motionopt.plot import body_root

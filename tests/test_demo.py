@@ -6,8 +6,8 @@ import bvhio
 import pytest
 
 from motionopt import bvh
-from motionopt.cli import main
-from motionopt.demo import FILES, demo_inputs, run_demo
+from motionopt.app.cli import main
+from motionopt.app.demo import FILES, demo_inputs, run_demo
 from priors.sampling import root_speed
 
 

@@ -11,12 +11,12 @@ import torch
 
 from motionopt import attributes as A
 from motionopt import bvh
-from motionopt.cli import main
-from motionopt.cli.latent import TINY
+from motionopt.app.cli import main
+from motionopt.app.cli.latent import TINY
 from motionopt.inversion import InversionOptions, blend, invert, window_starts
 from priors.checkpoint import CheckpointError, load_prior, read_checkpoint
 from priors.latent import LatentConfig, LatentPrior
-from priors.protocol import LatentMotionPrior
+from motionopt.prior import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
 from motionopt.rotations import quat_multiply, yaw_quat

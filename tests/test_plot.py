@@ -9,7 +9,7 @@ from PIL import Image
 
 from motionopt import bvh
 from motionopt import plot as P
-from motionopt.cli import main
+from motionopt.app.cli import main
 from clips import BANDAI_30, CMU_120, DATA, slide
 
 

@@ -8,7 +8,7 @@ import torch
 
 from motionopt.features import planted_root_step
 from priors.checkpoint import CheckpointError, check_compatible, load_prior, read_checkpoint, save_prior
-from priors.protocol import MotionPrior
+from motionopt.prior import MotionPrior
 from priors.score import features_of
 
 from priorkit import cmu_clips, features, fresh_prior, tiny_prior

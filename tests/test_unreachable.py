@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from motionopt import bvh
-from motionopt.cli import main
+from motionopt.app.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, load_prior
 from problems.edit import JointTarget, SpatialEdit
 from problems.inbetween import Inbetween

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from motionopt.cli import main
+from motionopt.app.cli import main
 from priors.checkpoint import CHECKPOINT_DIR, CheckpointError, load_prior, read_checkpoint
 from problems.common import MAX_FILE_BYTES
 from problems.edit import MAX_TARGETS, MAX_TARGETS_BYTES, load_targets

@@ -1,4 +1,4 @@
-"""``motionopt batch``: one task over every BVH file of a folder tree (``motionopt.batch``)."""
+"""``motionopt batch``: one task over every BVH file of a folder tree (``motionopt.app.batch``)."""
 from __future__ import annotations
 
 import argparse
@@ -9,7 +9,7 @@ from . import UserError, add_common, build_parser
 
 
 def register(sub) -> None:
-    from motionopt.batch import TASKS
+    from motionopt.app.batch import TASKS
 
     p = sub.add_parser(
         "batch", help="run a task over every BVH file of a folder tree (resumable, on Dask)", allow_abbrev=False,
@@ -44,7 +44,7 @@ def register(sub) -> None:
 def check_task_options(task: str, options: list[str]) -> None:
     """Refuse the options a batch sets itself, and let the task's own parser check the rest
     now, so that a typo fails before the first file rather than on every file."""
-    from motionopt.batch import RESERVED
+    from motionopt.app.batch import RESERVED
 
     for word in options:
         if word.split("=")[0] in RESERVED:
@@ -61,7 +61,7 @@ def check_task_options(task: str, options: list[str]) -> None:
 def cmd_batch(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from motionopt.batch import BatchError, BatchPlan, prepare, run_batch
+    from motionopt.app.batch import BatchError, BatchPlan, prepare, run_batch
 
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")

@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from .atomic import write_text_atomic
+from ..atomic import write_text_atomic
 
 #: Tasks a batch can run: the single-file commands of the same names.
 TASKS = ("denoise", "inbetween", "complete", "edit", "path-follow")

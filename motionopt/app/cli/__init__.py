@@ -11,7 +11,7 @@ import importlib
 import logging
 import sys
 
-from ..bvh import BVHError
+from ...bvh import BVHError
 
 #: Modules that add subcommands; a module missing here is simply not offered.
 COMMAND_MODULES = ("files", "prior", "tasks", "latent", "view", "demo", "batch")

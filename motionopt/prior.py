@@ -11,9 +11,9 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
-from motionopt.dataset import Normalizer
-from motionopt.features import FeatureSpec
-from motionopt.skeleton import Skeleton
+from .dataset import Normalizer
+from .features import FeatureSpec
+from .skeleton import Skeleton
 
 
 @runtime_checkable

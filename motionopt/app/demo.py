@@ -10,8 +10,8 @@ from typing import Callable
 
 import numpy as np
 
-from . import bvh, plot
-from .motion import Motion
+from .. import bvh, plot
+from ..motion import Motion
 
 
 @dataclass
@@ -50,7 +50,7 @@ def noisy_copy(motion: Motion, sigma_rad: float, seed: int) -> Motion:
     and on the root position (sigma_rad * 0.1 m), as capture noise looks."""
     import torch
 
-    from .rotations import axis_angle_to_quat, quat_multiply
+    from ..rotations import axis_angle_to_quat, quat_multiply
 
     rng = np.random.default_rng(seed)
     noise = rng.normal(0.0, sigma_rad, motion.rotations.shape[:-1] + (3,))
@@ -101,7 +101,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     from problems.latent import latent_edit
     from problems.path_follow import PathFollow
 
-    from .metrics import mpjpe
+    from ..metrics import mpjpe
 
     out = Path(out_dir)
     clash = [n for n in FILES if (out / n).exists()]

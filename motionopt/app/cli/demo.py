@@ -44,7 +44,7 @@ def _fmt(v) -> str:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from motionopt.demo import run_demo
+    from motionopt.app.demo import run_demo
 
     say = (lambda s: None) if args.quiet else (lambda s: print(f"... {s}", flush=True))
     summary = run_demo(args.out_dir, force=args.force, fast=args.fast, progress=say)
