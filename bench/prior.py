@@ -42,50 +42,19 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from motionopt import bvh
-from motionopt import rotations as R
 from motionopt.dataset import build_dataset
-from motionopt.features import RootStart, decode_positions, encode, to_model_motion
+from motionopt.codec import Codec
+from motionopt.noise import position_noise
+from motionopt.table import format_table
 from motionopt.motion import Motion
 from priors.checkpoint import load_prior, shipped_checkpoints
+from priors.heldout import Clip, data_folder, held_out_clips
 from priors import temperature as calibration
 from priors.temperature import skating_against, window_speed_ratios
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "prior.txt"
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
-
-
-# ---- data -----------------------------------------------------------------------------
-def data_folder(meta: dict) -> Path:
-    """The checkpoint's data folder: relative to the repository, or under /work/shared/data."""
-    for p in (ROOT / meta["data"], Path(meta["data"]), Path("/work/shared/data") / Path(meta["data"]).name):
-        if p.is_dir():
-            return p
-    raise FileNotFoundError(f"training data {meta['data']} not found; the benchmark needs ../shared/data")
-
-
-@dataclass
-class Clip:
-    """A held-out clip as the prior sees it: model motion, normalised features, root start."""
-
-    name: str
-    motion: Motion
-    x: Tensor
-    start: RootStart
-
-
-def held_out_clips(prior, folder: Path) -> list[Clip]:
-    clips = []
-    for name in prior.metadata["validation_clips"]:
-        model = to_model_motion(bvh.load(folder / name), prior.spec)
-        x, start = encode(model, prior.spec)
-        clips.append(Clip(name, model, prior.normalizer.normalize(x).float(), start))
-    return clips
-
-
-def features(prior, motion: Motion) -> Tensor:
-    return prior.normalizer.normalize(encode(motion, prior.spec)[0]).float()
 
 
 # ---- likelihood -----------------------------------------------------------------------
@@ -140,27 +109,6 @@ def still_dims(prior) -> Tensor:
 
 
 # ---- perturbations --------------------------------------------------------------------
-def rotation_jitter(motion: Motion, scale: float, noise: Tensor) -> Motion:
-    """The motion with local rotations turned by axis-angles ``scale * noise (T, J, 3)``."""
-    q = torch.from_numpy(motion.rotations)
-    turned = R.quat_multiply(q, R.axis_angle_to_quat(scale * noise))
-    return motion.with_frames(turned.numpy(), motion.root.copy())
-
-
-def position_noise(motion: Motion, rms: float = 0.01, seed: int = 0) -> tuple[Motion, float]:
-    """Rotation noise calibrated so joint positions move ``rms`` metres RMS; returns the
-    noisy motion and the axis-angle std (radians) used."""
-    gen = torch.Generator().manual_seed(seed)
-    noise = torch.randn(*motion.rotations.shape[:2], 3, generator=gen, dtype=torch.float64)
-    clean = torch.from_numpy(motion.positions())
-    scale = 0.01
-    for _ in range(3):  # displacement is nearly linear in the scale: a few secant steps
-        moved = torch.from_numpy(rotation_jitter(motion, scale, noise).positions())
-        got = (moved - clean).norm(dim=-1).pow(2).mean().sqrt().item()
-        scale *= rms / got
-    return rotation_jitter(motion, scale, noise), scale
-
-
 def double_speed(motion: Motion) -> Motion:
     """Every second frame, at the original frame rate."""
     return replace(motion[::2], fps=motion.fps)
@@ -182,8 +130,7 @@ def rollouts(prior, clips: list[Clip], seconds: float, seeds: int, temperature: 
         gen = torch.Generator().manual_seed(0)
         new = prior.sample(prefix[-c:].expand(seeds, c, -1), n, generator=gen, temperature=temperature, plant=plant)
         full = torch.cat((prefix.expand(seeds, -1, -1), new), dim=1)
-        raw = prior.normalizer.denormalize(full.double())
-        pos = decode_positions(raw, prior.spec, prior.skeleton, clip.start)
+        pos = Codec.of(prior).positions(full.double(), clip.start)
         out += [(clip, p[c0 + c:]) for p in pos]
     return out
 
@@ -215,11 +162,8 @@ def time_nll_pass(prior, x: Tensor, frames: int = 300, repeats: int = 20) -> flo
 
 # ---- report ---------------------------------------------------------------------------
 def table(rows: list[list[str]]) -> str:
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))
-             for r in rows]
-    lines.insert(1, "-" * len(lines[0]))
-    return "\n".join(lines)
+    """``rows`` (the header first) as an aligned table with a rule under the header."""
+    return "\n".join(format_table(rows[0], rows[1:], indent=0, rule=True))
 
 
 def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[float] | None) -> str:
@@ -233,6 +177,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
     baseline = ConstantVelocityGaussian.fit([prior.normalizer.normalize(x).float() for x in train.train.values()],
                                             prior.spec.pose_dim, floor)
     clips = held_out_clips(prior, folder)
+    codec = Codec.of(prior)
     lines = [f"== {path.name}: weights of epoch {meta.get('selected_epoch')} (best median validation NLL), "
              f"after {meta.get('training_minutes', 0):.0f} min of training; "
              f"{len(train.train)} training clips ({train.num_train_frames} frames), "
@@ -250,7 +195,7 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
     trimmed_wins = 0
     for clip in clips:
         noisy, s = position_noise(clip.motion, 0.01, seed=1)
-        xn, xf = features(prior, noisy), features(prior, double_speed(clip.motion))
+        xn, xf = codec.features(noisy), codec.features(double_speed(clip.motion))
         per = {"prior": prior_nll(prior, clip.x), "base": baseline.nll(clip.x), "noisy": prior_nll(prior, xn),
                "fast": prior_nll(prior, xf), "base_noisy": baseline.nll(xn), "base_fast": baseline.nll(xf)}
         for k, v in per.items():

@@ -33,6 +33,7 @@ import prior as bench_prior  # noqa: E402  (bench/prior.py)
 
 from motionopt.app.cli import build_parser  # noqa: E402
 from motionopt.app.cli.prior import train_config, train_metadata  # noqa: E402
+from priors.heldout import held_out_clips  # noqa: E402
 from priors.temperature import window_speed_ratios  # noqa: E402
 
 #: Settings tried: name -> train-prior options beyond those of the checkpoint it is like.
@@ -67,7 +68,7 @@ def prepare(like: Path, out: Path) -> None:
     ds = build_dataset(args.data, fps=args.fps, val=args.val, unit=args.unit, include=args.include)
     for split in (ds.train, ds.val):  # half the size to travel; windows are float32 anyway
         split.update({k: v.float() for k, v in split.items()})
-    clips = bench_prior.held_out_clips(load_prior(like), Path(args.data))
+    clips = held_out_clips(load_prior(like), Path(args.data))
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"dataset": ds, "clips": clips, "meta": meta}, out)
     print(f"wrote {out}: {len(ds.train)} training clips ({ds.num_train_frames} frames), {len(clips)} held out")

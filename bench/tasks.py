@@ -48,15 +48,16 @@ from scipy.signal import butter, filtfilt, savgol_filter
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench.prior import data_folder, position_noise  # noqa: E402
-from motionopt import bvh  # noqa: E402
 from motionopt import rotations as R  # noqa: E402
-from motionopt.features import encode, to_model_motion  # noqa: E402
+from motionopt.codec import Codec  # noqa: E402
 from motionopt.kinematics import fk  # noqa: E402
 from motionopt.metrics import foot_skating, jerk, l2p, l2q, npss  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
+from motionopt.noise import position_noise  # noqa: E402
+from motionopt.table import format_table  # noqa: E402
 from motionopt.solver import SolverOptions  # noqa: E402
 from priors.checkpoint import load_prior  # noqa: E402
+from priors.heldout import held_out_clips  # noqa: E402
 from problems.denoise import Denoise  # noqa: E402
 from problems.edit import JointTarget, SpatialEdit  # noqa: E402
 from problems.inbetween import Inbetween, complete  # noqa: E402
@@ -66,34 +67,19 @@ RESULTS = ROOT / "bench" / "results" / "tasks.txt"
 LOCOMOTION = ROOT / "priors" / "checkpoints" / "bandai-locomotion-ccnet.pt"
 
 
-def held_out(prior, n: int) -> list[tuple[str, Motion]]:
-    """The first ``n`` validation clips, on the prior's joints at its frame rate."""
-    folder = data_folder(prior.metadata)
-    return [(name, to_model_motion(bvh.load(folder / name), prior.spec))
-            for name in prior.metadata["validation_clips"][:n]]
-
-
 def short(name: str) -> str:
     return name.replace("dataset-1_", "").replace("_001", "").replace(".bvh", "")
 
 
 def continuation_nll(prior, m: Motion, start: int) -> float:
     """Mean prior NLL per frame of frames ``start:`` given the frames before them."""
-    raw, _ = encode(m, prior.spec)
-    x = prior.normalizer.normalize(raw).float()
+    x = Codec.of(prior).features(m)
     with torch.no_grad():
         return float(prior.nll(x[start:], x[max(0, start - prior.receptive_field):start]).mean())
 
 
 def skating(prior, m: Motion) -> float:
     return float(foot_skating(torch.from_numpy(m.positions()), m.fps, prior.spec.contact_indices())) * 100
-
-
-def table(header: list[str], rows: list[list]) -> list[str]:
-    cells = [header] + [[f"{v:.3g}" if isinstance(v, float) else str(v) for v in r] for r in rows]
-    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
-    return ["   " + "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
-            for r in cells]
 
 
 # ---- 1. path following ----------------------------------------------------------------
@@ -152,7 +138,7 @@ def bench_path(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[s
     lines = [f"1. Path following (prior trained on {prior.metadata.get('data', '')}; seed = first second; held-out "
              f"paths: the clip's root path over the next {seconds:g} s, timed by the clip; drawn paths at 1 m/s, "
              "mocap reference for them = mean of the held-out segments)"]
-    lines += table(["path", "dist cm mean", "dist cm max", "skate cm/s", "mocap cm/s", "ratio", "NLL/frame",
+    lines += format_table(["path", "dist cm mean", "dist cm max", "skate cm/s", "mocap cm/s", "ratio", "NLL/frame",
                     "mocap NLL", "frames/s"], rows)
     lines.append(f"   held-out paths: mean distance {np.mean([r[1] for r in held]):.2f} cm; skating "
                  f"{np.mean(ours_sk):.1f} vs mocap {np.mean(ref_sk):.1f} cm/s (ratio of means "
@@ -225,7 +211,7 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
                  for label in variants]
         lines.append(f"   {level * 100:g} cm: rotation noise s = {np.mean([a for a, _ in sig]):.4f} rad, "
                      f"estimated from the input {np.mean([b for _, b in sig]):.4f} rad")
-    lines += table(["noise", "method", "setting", "MPJPE cm", "skate cm/s", "jerk m/s^3"], rows)
+    lines += format_table(["noise", "method", "setting", "MPJPE cm", "skate cm/s", "jerk m/s^3"], rows)
     return lines
 
 
@@ -276,7 +262,7 @@ def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list
                          n, f"{n_syn / secs:.0f}" if label == "ours" else ""])
     lines = ["3. In-betweening (LAFAN1 protocol: 10 context frames, gap, 1 target frame; windows every 40 frames "
              "from the start of each held-out clip, at most 5 per clip; L2P in metres without LAFAN1's normalisation)"]
-    lines += table(["gap", "method", "cases", "L2P m", "L2Q", "NPSS", "frames/s"], rows)
+    lines += format_table(["gap", "method", "cases", "L2P m", "L2Q", "NPSS", "frames/s"], rows)
     return lines
 
 
@@ -318,7 +304,7 @@ def bench_complete(prior, clips: list[tuple[str, Motion]]) -> list[str]:
     rows = [[label, len(v), float(np.mean(v))] for label, v in res.items()]
     lines = [f"4. Prefix completion (1 s prefix, 1 s continuation, from every {COMPLETION_EVERY_S} s of "
              f"{len({c[0] for c in cases})} held-out clips: {len(cases)} cases)"]
-    lines += table(["method", "clips", "MPJPE cm"], rows)
+    lines += format_table(["method", "clips", "MPJPE cm"], rows)
     lines.append(f"   prior NLL per frame of the continuation (lower is more likely): ours {np.mean(nll_ours):.1f}, "
                  f"real {np.mean(nll_real):.1f}")
     return lines
@@ -341,7 +327,7 @@ def bench_edit(prior, clips: list[tuple[str, Motion]]) -> list[str]:
                          f"{r['frames_per_second']:.0f}"])
     lines = ["5. Spatial edits (first 4 s of held-out clips; falloff 0.5 s; untouched = frames more than the falloff "
              "from every target, and all joints outside the edited limbs: tolerance 0 cm, they are copied)"]
-    lines += table(["clip", "edit", "target err cm max", "untouched change cm max", "edited frames change cm",
+    lines += format_table(["clip", "edit", "target err cm max", "untouched change cm max", "edited frames change cm",
                     "frames/s"], rows)
     return lines
 
@@ -360,7 +346,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     prior = load_prior(args.prior)
-    clips = held_out(prior, args.clips)
+    clips = [(c.name, c.motion) for c in held_out_clips(prior, limit=args.clips)]
     small = [c for c in clips if c[1].num_frames >= 4 * prior.spec.fps][:args.small]
     name = args.prior.relative_to(ROOT) if args.prior.is_relative_to(ROOT) else args.prior
     lines = [f"Tasks on held-out clips of {name} (weights of epoch {prior.metadata.get('selected_epoch')} of "

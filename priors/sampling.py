@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from motionopt.features import decode_motion, estimate_ground
+from motionopt.codec import Codec
+from motionopt.features import estimate_ground
 from motionopt.motion import Motion
 
 from .latent import LatentPrior
@@ -47,9 +48,8 @@ def sample_motion(prior: LatentPrior, seed: int = 0, speed: float | None = None,
     gen = torch.Generator().manual_seed(seed)
     n = candidates if speed is not None else 1
     x = prior.generate(prior.broadcast(prior.sample_w(n, gen, truncation=truncation)))
-    raw = prior.normalizer.denormalize(x.double())
-    clips = [on_the_floor(decode_motion(r, prior.spec, prior.skeleton), prior.spec.contact_indices(), unit)
-             for r in raw]
+    codec = Codec.of(prior)
+    clips = [on_the_floor(codec.motion(w), prior.spec.contact_indices(), unit) for w in x]
     if speed is None:
         return clips[0]
     return min(clips, key=lambda c: abs(root_speed(c) - speed))

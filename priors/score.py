@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from motionopt.features import encode, to_model_motion
+from motionopt.codec import Codec
 from motionopt.motion import Motion
 
 from .checkpoint import CheckpointError, check_compatible
@@ -31,21 +31,22 @@ class ScoreReport:
                 "worst": [{"start": a, "stop": b, "nll_per_frame": v} for a, b, v in self.worst]}
 
 
-def features_of(prior, motion: Motion) -> torch.Tensor:
-    """Normalised features (T, D) of a motion for ``prior`` (resampled, joints selected)."""
+def checked_features(prior, motion: Motion) -> torch.Tensor:
+    """Normalised features (T, D) of any motion for ``prior`` (resampled, joints selected),
+    after checking that its skeleton is the prior's (``CheckpointError`` says how not)."""
     check_compatible(prior.spec, motion.skeleton)
-    model = to_model_motion(motion, prior.spec)
+    codec = Codec.of(prior)
+    model = codec.model_motion(motion)
     if not model.skeleton.same_hierarchy(prior.skeleton):
         raise CheckpointError("the motion's joints have the prior's names but another hierarchy (parents "
                               "differ); use a prior trained on this skeleton (`motionopt train-prior`)")
-    x, _ = encode(model, prior.spec)
-    return prior.normalizer.normalize(x).float()
+    return codec.features(model)
 
 
 @torch.no_grad()
 def score_motion(prior, motion: Motion, window_seconds: float = 1.0, n_worst: int = 3) -> ScoreReport:
     """Score every frame after the first under the prior; report the worst windows."""
-    x = features_of(prior, motion)
+    x = checked_features(prior, motion)
     if len(x) < 2:
         raise ValueError("the clip is too short to score: it needs at least two frames at the prior's rate")
     nll = prior.nll(x[1:], context=x[:1]).double().numpy()

@@ -27,7 +27,8 @@ import torch
 from torch import Tensor
 
 from motionopt import attributes as A
-from motionopt.features import RootStart, decode, decode_positions
+from motionopt.codec import Codec
+from motionopt.features import RootStart, decode
 
 from .latent import LatentPrior
 from .style import StyleClassifier
@@ -71,16 +72,16 @@ class AttributeScorer:
         self.height_dim = prior.spec.slices()["root_height"].start
 
     def __call__(self, x: Tensor) -> dict[str, Tensor]:
-        raw = self.prior.normalizer.denormalize(x.double())
-        pos = decode_positions(raw, self.prior.spec, self.prior.skeleton, RootStart())
+        codec = Codec.of(self.prior)
+        raw = codec.raw(x.double())
+        pos = codec.positions(x.double())
         return {"gral": A.gradual_right_arm_lift(pos, *self.arm),
                 "root_speed": A.root_speed(pos[..., 0, :], self.prior.spec.fps),
                 "crouch": A.crouch_depth(raw[..., self.height_dim], self.standing)}
 
     def root_path(self, x: Tensor) -> Tensor:
         """Root positions (B, T, 3) of windows decoded from the origin."""
-        raw = self.prior.normalizer.denormalize(x.double())
-        return decode(raw, self.prior.spec, RootStart())[1]
+        return decode(Codec.of(self.prior).raw(x.double()), self.prior.spec, RootStart())[1]
 
 
 def _fit(name: str, w: np.ndarray, labels: np.ndarray, source: str, w_all: np.ndarray, seed: int) -> Direction | None:

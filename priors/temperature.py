@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from motionopt import metrics
-from motionopt.features import RootStart, decode_positions
+from motionopt.codec import Codec
 
 #: Temperatures tried, and what a prior without a calibrated one samples at.
 CANDIDATES = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
@@ -64,11 +64,6 @@ def window_speed_ratios(pos: Tensor, fps: float, data_speed: float, seconds: flo
     return [float(speed[a:a + w].mean()) / data_speed for a in range(0, len(speed) - w + 1, w)]
 
 
-def positions_of(prior, x: Tensor) -> Tensor:
-    """World positions (..., T, J, 3) of normalised features, decoded from the origin."""
-    return decode_positions(prior.normalizer.denormalize(x.double()), prior.spec, prior.skeleton, RootStart())
-
-
 def skating_against(prior, pos: Tensor, reference: Tensor) -> float:
     """Foot skating (m/s) of positions (T, J, 3), planted heights from ``reference``'s."""
     cidx = prior.spec.contact_indices()
@@ -98,14 +93,14 @@ def trials(prior, clips: Sequence[Tensor], temperatures: Sequence[float] = CANDI
     clips = [x for x in clips if len(x) >= c]
     if not clips:
         raise ValueError(f"no clip of at least {CONTEXT_SECONDS:g} s to roll out from")
-    refs = [positions_of(prior, x) for x in clips]
+    refs = [Codec.of(prior).positions(x.double()) for x in clips]
     data_speed, data_skate = data_reference(prior, refs)
     context = torch.stack([x[max(0, len(x) // 2 - c):][:c] for x in clips])
     k = len(temperatures)
     scale = torch.tensor(temperatures, dtype=context.dtype).repeat_interleave(len(clips))
     eps = torch.randn(k * len(clips), n, prior.spec.pose_dim, generator=torch.Generator().manual_seed(seed))
     new = prior.sample(context.repeat(k, 1, 1), n, noise=eps * scale[:, None, None])
-    pos = positions_of(prior, torch.cat((context.repeat(k, 1, 1), new), dim=1))[:, c:]
+    pos = Codec.of(prior).positions(torch.cat((context.repeat(k, 1, 1), new), dim=1).double())[:, c:]
     out = []
     for i, t in enumerate(temperatures):
         rows = range(i * len(clips), (i + 1) * len(clips))

@@ -31,7 +31,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from motionopt.dataset import MotionDataset
-from motionopt.features import RootStart, decode_positions
+from motionopt.codec import Codec
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm, \
     window_descriptors
 
@@ -88,12 +88,12 @@ class Geometry:
 
     def __init__(self, prior: LatentPrior):
         self.prior = prior
+        self.codec = Codec.of(prior)
         self.contact_idx = prior.spec.contact_indices()
 
     def positions(self, x: Tensor) -> Tensor:
         """(B, T, J, 3) metres, every window starting at the origin facing +z."""
-        raw = self.prior.normalizer.denormalize(x)
-        return decode_positions(raw, self.prior.spec, self.prior.skeleton, RootStart())
+        return self.codec.positions(x)
 
     def foot_speed_sq(self, pos: Tensor) -> Tensor:
         """Squared speed (m/s)^2 of the contact joints, (B, T-1, C)."""

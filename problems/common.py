@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from motionopt.features import (RootStart, contact_labels, decode_motion, encode, to_file_motion,
-                                to_model_motion)
+from motionopt.codec import Codec
+from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
@@ -66,21 +66,27 @@ class Prepared:
 
     original: Motion
     model: Motion
+    codec: Codec               # the prior's features, decoded onto the model skeleton
     raw: torch.Tensor          # (T, D) unnormalised features
     x: torch.Tensor            # (T, D) normalised features
     start: RootStart
     planted_height: np.ndarray  # (C,) height of each contact joint when planted (world y, metres)
 
+    def to_file(self, model: Motion) -> Motion:
+        """A model-skeleton result back on the user's skeleton, rate and units."""
+        return to_file_motion(model, self.original)
+
 
 def prepare(motion: Motion, prior) -> Prepared:
     """Check the skeleton against the prior, convert and encode."""
     check_compatible(prior.spec, motion.skeleton)
-    model = to_model_motion(motion, prior.spec)
-    raw, start = encode(model, prior.spec)
+    model = Codec.of(prior).model_motion(motion)
+    codec = Codec.of(prior, model.skeleton)
+    raw, x, start = codec.encode(model)
     cidx = prior.spec.contact_indices()
     pos = model.positions()
     planted = np.percentile(pos[:, cidx, 1], 5.0, axis=0)
-    return Prepared(motion, model, raw, prior.normalizer.normalize(raw).float(), start, planted)
+    return Prepared(motion, model, codec, raw, x, start, planted)
 
 
 @dataclass
@@ -135,14 +141,8 @@ def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[T
     objective = MAPObjective(prior, prep.model.skeleton, terms, noise_sigma=noise_sigma,
                              prior_min_log_std=prior_min_log_std)
     result = solve(objective, Problem(x0, free, prep.start), options)
-    raw = prior.normalizer.denormalize(result.x.double())
     # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
-    model = decode_motion(raw, prior.spec, prep.model.skeleton, prep.start, like=prep.original)
-    return result, model
-
-
-def back_to_file(model: Motion, prep: Prepared) -> Motion:
-    return to_file_motion(model, prep.original)
+    return result, prep.codec.motion(result.x.double(), prep.start, like=prep.original)
 
 
 def model_frames_in(ranges: list[tuple[int, int]], original_fps: float, model_fps: float, n_model: int) -> np.ndarray:
@@ -233,15 +233,3 @@ def root_features(points: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
     local = np.stack((c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]), axis=-1)
     return np.concatenate((local, np.diff(yaw)[:, None]), axis=-1)
-
-
-def end_yaw(prep: Prepared, upto: int | None = None) -> float:
-    """Heading (radians, unwrapped) of frame ``upto - 1`` (default the last) of the input."""
-    s = prep.raw[:upto, 2].double().sum() if upto is None or upto > 0 else 0.0
-    return float(prep.start.yaw + s)
-
-
-def features_of(motion: Motion, prior, ground: float) -> torch.Tensor:
-    """Normalised features (T, D) of a model motion, heights measured from ``ground``."""
-    raw, _ = encode(motion, prior.spec, ground=ground)
-    return prior.normalizer.normalize(raw).float()

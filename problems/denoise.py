@@ -14,7 +14,7 @@ from motionopt.smoothing import butterworth, denoising_family, least_risk
 from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import SolverOptions
 
-from .common import TaskResult, TermSigmas, back_to_file, plant_feet, prepare, run, standard_terms
+from .common import TaskResult, TermSigmas, plant_feet, prepare, run, standard_terms
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
@@ -135,7 +135,7 @@ class Denoise:
             "mean_change_cm": float((after - before).norm(dim=-1).mean() * 100),
             "frames_per_second": n / max(seconds, 1e-9),
         }
-        return TaskResult(back_to_file(model, prep), model, result, metrics,
+        return TaskResult(prep.to_file(model), model, result, metrics,
                           {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz, "refine": self.refine,
                            "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
                            "smoothers": smoothers})

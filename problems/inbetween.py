@@ -8,13 +8,13 @@ import numpy as np
 import torch
 
 from motionopt import rotations as R
-from motionopt.features import RootStart, decode_motion
+from motionopt.features import RootStart
 from motionopt.motion import Motion
 from motionopt.objective import PoseFidelityTerm
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 
-from .common import (MAX_HUMAN_SPEED, TaskResult, TermSigmas, back_to_file, clamped_rollout, features_of,
+from .common import (MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      model_frames_in, plant_feet, prepare, root_features, run, splice, standard_terms, warned)
 
 
@@ -103,7 +103,7 @@ class Inbetween:
             self._fill(prep, rot, root, a, b if b < n else None, n, gen)
         model = prep.model.with_frames(rot, root, None) if n == n_in else Motion(
             prep.model.skeleton, rot, root, fps_m, source_unit=prep.model.source_unit)
-        x = features_of(model, prior, prep.start.ground)
+        x = prep.codec.features(model, prep.start.ground)
         result = None
         join = np.zeros(n, bool)
         join[1:] = kept[1:] & ~kept[:-1]
@@ -117,7 +117,7 @@ class Inbetween:
         if self.clean_feet:
             model = plant_feet(model, prior, x, prep.planted_height, ~kept)
         seconds = time.perf_counter() - t0
-        synth = back_to_file(model, prep)
+        synth = prep.to_file(model)
         keep_o = np.zeros(synth.num_frames, bool)
         for a, b in self.keep:
             keep_o[a:b] = True
@@ -162,7 +162,7 @@ class Inbetween:
         prior = self.prior
         ground = prep.start.ground
         ctx_motion = Motion(prep.model.skeleton, rot[:a], root[:a], prior.spec.fps)
-        ctx = features_of(ctx_motion, prior, ground)[-prior.receptive_field:]
+        ctx = prep.codec.features(ctx_motion, ground)[-prior.receptive_field:]
         upto = a if b is None else b + 1
         yaws = np.unwrap(2 * np.arctan2(rot[:upto, 0, 2], rot[:upto, 0, 0]))
         start = RootStart(float(yaws[a - 1]), float(root[a - 1, 0]), float(root[a - 1, 2]), ground)
@@ -182,8 +182,7 @@ class Inbetween:
             yaw = yaws[a - 1] + (y1 - yaws[a - 1]) * s[:, 0]
             new = clamped_rollout(prior, ctx, torch.from_numpy(root_features(pts, yaw)), slice(0, 3),
                                   self.gap_temperature, gen)
-        raw = prior.normalizer.denormalize(new.double())
-        m = decode_motion(raw, prior.spec, prep.model.skeleton, start)
+        m = prep.codec.motion(new.double(), start)
         q, r = m.rotations, m.root
         if b is not None:
             if a >= 2:

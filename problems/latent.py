@@ -17,7 +17,8 @@ import torch
 from torch import Tensor
 
 from motionopt import rotations as R
-from motionopt.features import RootStart, decode_motion, decode_positions, heading_angle, to_file_motion, wrap_angle
+from motionopt.codec import Codec
+from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_angle
 from motionopt.inversion import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
 from motionopt.smoothing import local_linear
@@ -65,13 +66,13 @@ class FidelityTerm:
 
     def __init__(self, prior: LatentPrior, target: Tensor, weights: Tensor, position_sigma: float):
         self.prior, self.target = prior, target.float()
+        self.codec = Codec.of(prior)
         self.weights = weights.float() / weights.float().sum().clamp_min(1e-9)
         self.sigma = position_sigma
         self.target_pos = self.positions(self.target).detach()
 
     def positions(self, x: Tensor) -> Tensor:
-        raw = self.prior.normalizer.denormalize(x)
-        return decode_positions(raw, self.prior.spec, self.prior.skeleton, RootStart())
+        return self.codec.positions(x)
 
     def __call__(self, x: Tensor) -> Tensor:
         p = self.prior.spec.pose_dim
@@ -104,8 +105,7 @@ def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, i
     original's rate (default: as many as the features last). ``anchor`` (the input at the
     model rate, its known frames): take the root's slow motion from it (``anchor_root``).
     The model motion is held one frame longer so that resampling covers the last file frame."""
-    raw = prior.normalizer.denormalize(x.double())
-    model = decode_motion(raw, prior.spec, prior.skeleton, start, like=original)
+    model = Codec.of(prior).motion(x.double(), start, like=original)
     if anchor is not None:
         model = anchor_root(model, *anchor)
     if n_frames is None:

@@ -11,7 +11,6 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
-from motionopt.features import decode_motion
 from motionopt.metrics import foot_skating
 from motionopt.motion import Motion
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
@@ -19,8 +18,8 @@ from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
-from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, Prepared, TaskResult, TermSigmas, back_to_file,
-                     clamped_rollout, features_of, plant_feet, prepare, read_text, root_features, run, standard_terms,
+from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, Prepared, TaskResult, TermSigmas,
+                     clamped_rollout, plant_feet, prepare, read_text, root_features, run, standard_terms,
                      warned)
 
 #: Most seconds of new motion one run makes (a longer path: several runs, each continuing the last).
@@ -168,8 +167,7 @@ class PathFollow:
         return root_features(pts, yaw)
 
     def decode(self, x: torch.Tensor, prep: Prepared) -> Motion:
-        raw = self.prior.normalizer.denormalize(x.double())
-        return decode_motion(raw, self.prior.spec, prep.model.skeleton, prep.start, like=prep.original)
+        return prep.codec.motion(x.double(), prep.start, like=prep.original)
 
     def solve(self) -> TaskResult:
         prior = self.prior
@@ -210,10 +208,10 @@ class PathFollow:
             x = result.x
             model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         seconds = time.perf_counter() - t0
-        motion = back_to_file(model, prep)
+        motion = prep.to_file(model)
         new_root = model.root[n_seed:, [0, 2]]
         dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(new_root), torch.from_numpy(self.path)).numpy())
-        final = features_of(model, prior, prep.start.ground)
+        final = prep.codec.features(model, prep.start.ground)
         with torch.no_grad():
             nll = prior.nll(final[n_seed:], final[max(0, n_seed - prior.receptive_field):n_seed])
         metrics = {

@@ -73,6 +73,6 @@ def tiny_prior(steps: int = 30) -> CCNetPrior:
 
 def features(path: Path, prior: CCNetPrior | None = None) -> torch.Tensor:
     """Normalised features (T, D) of a clip for a prior (default: the tiny prior)."""
-    from priors.score import features_of
+    from priors.score import checked_features
 
-    return features_of(prior or tiny_prior(), bvh.load(path))
+    return checked_features(prior or tiny_prior(), bvh.load(path))

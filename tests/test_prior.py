@@ -9,7 +9,7 @@ import torch
 from motionopt.features import planted_root_step
 from priors.checkpoint import CheckpointError, check_compatible, load_prior, read_checkpoint, save_prior
 from motionopt.prior import MotionPrior
-from priors.score import features_of
+from priors.score import checked_features
 
 from priorkit import cmu_clips, features, fresh_prior, tiny_prior
 
@@ -228,7 +228,7 @@ def test_motion_of_another_skeleton_is_refused(prior):
     with pytest.raises(CheckpointError, match="lacks lThigh, lShin, lFoot.*train-prior"):
         check_compatible(prior.spec, legless.skeleton)
     with pytest.raises(CheckpointError, match="lacks"):
-        features_of(prior, legless)
+        checked_features(prior, legless)
 
 
 def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
@@ -242,7 +242,7 @@ def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
     parents[sk.index("lButtock")] = sk.index("abdomen")  # another rig's idea of the pelvis
     other = Skeleton(sk.names, parents, sk.offsets, sk.channels)
     with pytest.raises(CheckpointError, match="another hierarchy"):
-        features_of(prior, Motion(other, m.rotations, m.root, m.fps))
+        checked_features(prior, Motion(other, m.rotations, m.root, m.fps))
 
 
 def test_std_floor_bounds_the_predicted_std_in_feature_units(x, tmp_path):

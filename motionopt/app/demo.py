@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import bvh, plot
 from ..motion import Motion
+from ..noise import capture_noise
 
 
 @dataclass
@@ -43,20 +44,6 @@ def drawn_curve(start: np.ndarray, heading: np.ndarray, length: float = 4.0, tur
     radius = length / turn
     a = np.linspace(0.0, turn, points)
     return start + heading * radius * np.sin(a)[:, None] + left * radius * (1 - np.cos(a))[:, None]
-
-
-def noisy_copy(motion: Motion, sigma_rad: float, seed: int) -> Motion:
-    """The motion with Gaussian noise on every local joint rotation (radians, per axis)
-    and on the root position (sigma_rad * 0.1 m), as capture noise looks."""
-    import torch
-
-    from ..rotations import axis_angle_to_quat, quat_multiply
-
-    rng = np.random.default_rng(seed)
-    noise = rng.normal(0.0, sigma_rad, motion.rotations.shape[:-1] + (3,))
-    rot = quat_multiply(torch.from_numpy(motion.rotations), axis_angle_to_quat(torch.from_numpy(noise))).numpy()
-    root = motion.root + rng.normal(0.0, sigma_rad * 0.1, motion.root.shape)
-    return motion.with_frames(rot, root, motion.translations)
 
 
 def _write_report(path: Path, result, extra: dict) -> Path:
@@ -146,7 +133,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     # 2. Denoising: capture-like noise added to the CMU move, then cleaned (CMU prior).
     t0 = time.perf_counter()
     progress("denoising: cleaning a noised copy of the move")
-    noisy = noisy_copy(moves, 0.04, seed=0)
+    noisy = capture_noise(moves, 0.04, 0.004, seed=0)
     res = Denoise(noisy, cmu_prior).solve()
     bvh.save(noisy, out / "noisy.bvh", force=True)
     bvh.save(res.motion, out / "denoised.bvh", force=True)
