@@ -268,14 +268,6 @@ class JointPositionTerm(Term):
         return _gaussian(self.residuals(state).pow(2).sum(-1), self.sigma).sum(-1)
 
 
-def keyframe_term(frames: np.ndarray, root: np.ndarray, rotations: np.ndarray,
-                  sigma_root: float = 0.005, sigma_angle: float = 0.01) -> PoseFidelityTerm:
-    """Pose and root targets at keyframes: a fidelity term restricted to those frames."""
-    mask = np.zeros(len(root), bool)
-    mask[frames] = True
-    return PoseFidelityTerm(root, rotations, sigma_root, sigma_angle, mask=mask, name="keyframes")
-
-
 @dataclass
 class ContactTerm(Term):
     """Feet that the prior says are on the ground do not slide and rest at their planted

@@ -13,7 +13,7 @@ from motionopt import rotations as R
 from motionopt.features import RootStart, advance, decode, decode_positions, encode, to_model_motion
 from motionopt.kinematics import fk_matrices
 from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
-                                 PoseFidelityTerm, SmoothnessTerm, WindowState, keyframe_term,
+                                 PoseFidelityTerm, SmoothnessTerm, WindowState,
                                  nearest_on_polyline_sq)
 
 from priorkit import cmu_clips, features, tiny_prior
@@ -67,13 +67,15 @@ def terms():
     timed[FIRST:FIRST + T] = xz + 0.05
     mask = np.zeros(FIRST + T + 3, bool)
     mask[FIRST + 1:FIRST + 4] = True
+    keyframe = np.zeros(FIRST + T + 3, bool)
+    keyframe[FIRST + 2] = True
     hand = sk.names.index("rHand")
     return {
         "path nearest-point": PathTerm(path, sigma=0.05),
         "path timed": PathTerm(path, sigma=0.3, targets=timed, mask=mask),
         "pose fidelity": PoseFidelityTerm(root_t, rot_t, 0.02, 0.05, mask=mask),
         "pose fidelity, some joints": PoseFidelityTerm(None, rot_t, 0.02, 0.05, joints=[0, 3, 7]),
-        "keyframes": keyframe_term(np.array([FIRST + 2]), root_t, rot_t),
+        "pose fidelity, one tight keyframe": PoseFidelityTerm(root_t, rot_t, 0.005, 0.01, mask=keyframe),
         "joint position": JointPositionTerm(hand, {FIRST + 1: np.array([0.1, 1.2, 0.3]),
                                                   FIRST + 4: np.array([0.0, 1.0, 0.2])}, sigma=0.01),
         "contact": ContactTerm([sk.names.index("rFoot"), sk.names.index("lFoot")], np.array([0.05, 0.06])),
