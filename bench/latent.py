@@ -43,13 +43,13 @@ from motionopt import bvh
 from motionopt import rotations as R
 from motionopt.dataset import build_dataset
 from motionopt.features import RootStart, decode_positions, to_model_motion
-from motionopt.inversion import refine, regulariser
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
+from motionopt.solver import InversionOptions, refine, regulariser
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, LatentOptions, infill, reconstruct
+from problems.latent import FidelityTerm, infill, reconstruct
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "latent.txt"
@@ -322,7 +322,8 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
         clean = full[: int(seconds * full.fps)]
         noisy = add_noise(clean, 0.05, 0.01, seed=i)
         record("denoise: noisy input", model_error_mm(prior, noisy, clean), 0.0)
-        for label, opts in (("latent encoder", LatentOptions()), ("latent + L-BFGS 30", LatentOptions(refine_iters=30))):
+        for label, opts in (("latent encoder", InversionOptions()),
+                            ("latent + L-BFGS 30", InversionOptions(refine_iters=30))):
             t0 = time.perf_counter()
             out = reconstruct(prior, noisy, opts).motion
             record(f"denoise: {label}", model_error_mm(prior, out, clean), time.perf_counter() - t0)
@@ -336,8 +337,8 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
         seen = np.ones(clean.num_frames, bool)
         seen[a:b] = False
         gap = slice(int(a * prior.spec.fps / clean.fps), int(b * prior.spec.fps / clean.fps))
-        for label, opts in (("latent masked encoder", LatentOptions()),
-                            ("latent masked + L-BFGS 30", LatentOptions(refine_iters=30))):
+        for label, opts in (("latent masked encoder", InversionOptions()),
+                            ("latent masked + L-BFGS 30", InversionOptions(refine_iters=30))):
             t0 = time.perf_counter()
             out = infill(prior, clean, seen, opts).motion
             record(f"in-between 1.5 s: {label}", model_error_mm(prior, out, clean, gap), time.perf_counter() - t0)

@@ -209,13 +209,13 @@ def ablation(seconds: float) -> list[str]:
 
 # ---- 2. overhead ----------------------------------------------------------------------
 PROFILE_GROUPS = {  # label -> (file, function, caller or None): cumulative time of those calls
-    "objective f+b (_Window.fun)": ("solver.py", "fun", None),
-    "particle swarm (rollouts and batched objective)": ("solver.py", "_pso_rollout", None),
-    "window set-up (rebase: whitening, fixed contacts)": ("solver.py", "rebase", None),
+    "objective f+b (Window.fun)": ("solver/window.py", "fun", None),
+    "particle swarm (rollouts and batched objective)": ("solver/swarm.py", "rollout_swarm", None),
+    "window set-up (rebase: whitening, fixed contacts)": ("solver/window.py", "rebase", None),
     "L-BFGS-B itself (scipy setulb)": ("~", "<built-in method scipy.optimize._lbfgsb.setulb>", None),
     "contacts of the solved window (prior pass)": ("ccnet.py", "nll_and_contacts", "_solve"),
-    "root state (advance)": ("features.py", "advance", "_solve"),
-    "seam report": ("solver.py", "seam_report", None),
+    "root state (advance)": ("features.py", "advance", "open"),   # WindowWalk.open advances it
+    "seam report": ("solver/diagnostics.py", "seam_report", None),
 }
 
 

@@ -4,7 +4,7 @@ semantic editing, interpolation, and variations.
 
 Each task turns the user's motion into normalised features, finds W+ codes (encoder,
 optionally PSO and L-BFGS against the task's fidelity terms, see
-``motionopt.inversion``), edits the codes when the task says so, generates, and puts
+``motionopt.solver.inversion``), edits the codes when the task says so, generates, and puts
 the result back on the user's skeleton, frame rate and unit.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from torch import Tensor
 from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_angle
-from motionopt.inversion import InversionOptions, InversionResult, blend, invert
+from motionopt.solver import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
 from motionopt.smoothing import local_linear
 from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior_cached
@@ -38,23 +38,6 @@ def load_latent_for(motion: Motion, path: str | None = None) -> LatentPrior:
                               "train one with `motionopt train-latent`")
     check_compatible(prior.spec, motion.skeleton, path)
     return prior
-
-
-@dataclass(frozen=True)
-class LatentOptions:
-    """Inversion settings of a task (see ``motionopt.inversion.InversionOptions``) and the
-    fidelity term's position sigma (metres): how far a refined joint may sit from the input."""
-
-    refine_iters: int = 0
-    reg_weight: float = 0.05
-    pso_iters: int = 0
-    overlap: int = 16
-    position_sigma: float = 0.05
-    seed: int = 0
-
-    def inversion(self) -> InversionOptions:
-        return InversionOptions(overlap=self.overlap, refine_iters=self.refine_iters, reg_weight=self.reg_weight,
-                                pso_iters=self.pso_iters, seed=self.seed)
 
 
 class FidelityTerm:
@@ -153,16 +136,16 @@ def _model_frame(prior: LatentPrior, motion: Motion, frame: int) -> int:
     return int(round(frame * prior.spec.fps / motion.fps))
 
 
-def reconstruct(prior: LatentPrior, motion: Motion, options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+def reconstruct(prior: LatentPrior, motion: Motion, options: InversionOptions = InversionOptions()) -> LatentTaskResult:
     """G(I(m)), optionally refined toward the input: denoising and cleaning (MoDi 4)."""
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
-    inv = invert(prior, prep.x, terms=[term], options=options.inversion())
+    inv = invert(prior, prep.x, terms=[term], options=options)
     return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
                    anchor=(prep.model, np.ones(len(prep.x), bool)))
 
 
-def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: LatentOptions = LatentOptions(),
+def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOptions = InversionOptions(),
          blend_frames: int = 8) -> LatentTaskResult:
     """A's frames before ``at`` followed by B's frames from ``at`` (file frame numbers, MoDi's
     fusion), passed through the encoder and generator. B's root continues from A's.
@@ -176,11 +159,11 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: LatentOptio
     weights = torch.ones(len(x))
     weights[max(0, t - blend_frames):t + blend_frames] = 0.0
     term = FidelityTerm(prior, x, weights, options.position_sigma)
-    inv = invert(prior, x, terms=[term], options=options.inversion())
+    inv = invert(prior, x, terms=[term], options=options)
     return _output(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
 
 
-def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: LatentOptions = LatentOptions()
+def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: InversionOptions = InversionOptions()
            ) -> LatentTaskResult:
     """Fill the frames of ``motion`` where ``seen`` (one bool per file frame) is false with
     the masked encoder: prefix completion (seen = a prefix) and in-betweening (seen =
@@ -194,7 +177,7 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Latent
     if not bool(mask.any()):
         raise ValueError("no frame is seen: give at least one known frame")
     term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
-    inv = invert(prior, prep.x, mask=mask, terms=[term], options=options.inversion())
+    inv = invert(prior, prep.x, mask=mask, terms=[term], options=options)
     return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
                    anchor=(prep.model, mask.numpy()))
 
@@ -209,7 +192,7 @@ def hold_last_frame(motion: Motion, n_frames: int) -> Motion:
 
 
 def complete(prior: LatentPrior, motion: Motion, prefix: int, n_frames: int,
-             options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+             options: InversionOptions = InversionOptions()) -> LatentTaskResult:
     """Prefix completion (MoDi 4): keep the first ``prefix`` frames, generate up to ``n_frames``."""
     if not 0 < prefix <= motion.num_frames:
         raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
@@ -229,11 +212,11 @@ def directions(prior: LatentPrior) -> dict[str, Direction]:
     return found
 
 
-def _invert_input(prior: LatentPrior, motion: Motion, options: LatentOptions) -> tuple[Prepared, InversionResult]:
+def _invert_input(prior: LatentPrior, motion: Motion, options: InversionOptions) -> tuple[Prepared, InversionResult]:
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     return prep, invert(prior, prep.x, terms=[term] if options.refine_iters or options.pso_iters else None,
-                        options=options.inversion())
+                        options=options)
 
 
 @torch.no_grad()
@@ -242,7 +225,7 @@ def _generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_fr
 
 
 def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: float,
-                options: LatentOptions = LatentOptions()) -> LatentTaskResult:
+                options: InversionOptions = InversionOptions()) -> LatentTaskResult:
     """Move the motion's codes ``strength`` standard deviations along an attribute's
     direction in W (MoDi 4.1) and generate."""
     dirs = directions(prior)
@@ -258,7 +241,7 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
                    n_frames=motion.num_frames)
 
 
-def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: LatentOptions = LatentOptions()
+def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: InversionOptions = InversionOptions()
                 ) -> list[LatentTaskResult]:
     """``steps`` motions whose codes go linearly from A's to B's (both cut to the shorter
     clip); the first is G(I(A)), the last G(I(B)); roots start where A starts."""
@@ -266,8 +249,8 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: L
         raise ValueError("--steps must be at least 2 (the two ends)")
     pa, pb = prepare(a, prior), prepare(b, prior)
     n = min(len(pa.x), len(pb.x))
-    inv_a = invert(prior, pa.x[:n], options=options.inversion())
-    inv_b = invert(prior, pb.x[:n], options=options.inversion())
+    inv_a = invert(prior, pa.x[:n], options=options)
+    inv_b = invert(prior, pb.x[:n], options=options)
     out = []
     for i in range(steps):
         alpha = i / (steps - 1)
@@ -278,7 +261,7 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: L
 
 
 def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int = 0,
-         options: LatentOptions = LatentOptions()) -> list[LatentTaskResult]:
+         options: InversionOptions = InversionOptions()) -> list[LatentTaskResult]:
     """``count`` variations: the motion's codes plus Gaussian offsets of ``sigma`` standard
     deviations along every principal direction of W (MoDi's crowds, sigma 0.1-0.8), one
     offset per variation shared by all windows and layers."""

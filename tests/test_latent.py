@@ -13,14 +13,14 @@ from motionopt import attributes as A
 from motionopt import bvh
 from motionopt.app.cli import main
 from motionopt.app.cli.latent import TINY
-from motionopt.inversion import InversionOptions, blend, invert, window_starts
+from motionopt.solver import InversionOptions, blend, clip_window_starts, invert
 from priors.checkpoint import CheckpointError, load_prior, read_checkpoint
 from priors.latent import LatentConfig, LatentPrior
 from motionopt.prior import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
 from motionopt.rotations import quat_multiply, yaw_quat
-from problems.latent import LatentOptions, anchor_root, complete, fuse, infill, reconstruct
+from problems.latent import anchor_root, complete, fuse, infill, reconstruct
 
 from priorkit import cmu_clips, tiny_dataset
 from clips import DATA
@@ -111,7 +111,7 @@ def test_masked_encoder_ignores_unseen_frames(prior):
 
 
 def test_window_blend_covers_long_clips():
-    starts = window_starts(100, 32, 8)
+    starts = clip_window_starts(100, 32, 8)
     assert starts[0] == 0 and starts[-1] == 68 and all(b - a <= 24 for a, b in zip(starts, starts[1:]))
     windows = torch.stack([torch.full((32, 3), float(s)) for s in starts])
     out = blend(windows, starts, 100)
@@ -123,14 +123,14 @@ def test_window_blend_covers_long_clips():
 
 def test_inversion_improves_the_objective(prior):
     clip = bvh.load(cmu_clips()[-1])  # held out, longer than a window
-    enc = reconstruct(prior, clip, LatentOptions(overlap=8))
-    ref = reconstruct(prior, clip, LatentOptions(overlap=8, refine_iters=15))
+    enc = reconstruct(prior, clip, InversionOptions(overlap=8))
+    ref = reconstruct(prior, clip, InversionOptions(overlap=8, refine_iters=15))
     assert len(ref.inversion.starts) > 1
     assert ref.inversion.objective_start == pytest.approx(enc.inversion.objective, rel=1e-5)
     assert ref.inversion.objective < 0.9 * ref.inversion.objective_start
     assert ref.motion.skeleton.names == clip.skeleton.names and ref.motion.fps == clip.fps
     assert ref.motion.num_frames == clip.num_frames
-    pso = reconstruct(prior, clip, LatentOptions(overlap=8, pso_iters=3))
+    pso = reconstruct(prior, clip, InversionOptions(overlap=8, pso_iters=3))
     assert pso.inversion.objective <= pso.inversion.objective_start + 1e-6
 
 
@@ -144,7 +144,7 @@ def test_infill_keeps_seen_frames_closer_than_unseen(prior):
     clip = bvh.load(cmu_clips()[-1])
     seen = np.zeros(clip.num_frames, bool)
     seen[: clip.num_frames // 2] = True
-    r = infill(prior, clip, seen, LatentOptions(refine_iters=10))
+    r = infill(prior, clip, seen, InversionOptions(refine_iters=10))
     assert r.inversion.objective < r.inversion.objective_start
     assert r.motion.num_frames == clip.num_frames
     longer = complete(prior, clip, clip.num_frames // 2, clip.num_frames + 20)
@@ -255,6 +255,6 @@ def test_anchor_root_removes_slow_drift_and_keeps_fast_motion():
 def test_encoder_reconstruction_of_a_long_clip_follows_the_input_path(prior):
     clip = bvh.load(cmu_clips()[-1])
     assert clip.num_frames * prior.spec.fps / clip.fps > 2 * prior.window  # several windows
-    out = reconstruct(prior, clip, LatentOptions()).motion
+    out = reconstruct(prior, clip, InversionOptions()).motion
     root_error = np.linalg.norm(out.root[:, [0, 2]] - clip.root[:, [0, 2]], axis=-1)
     assert root_error.mean() < 0.1

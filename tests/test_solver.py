@@ -17,7 +17,9 @@ from motionopt import bvh
 from motionopt import solver as S
 from motionopt.features import encode, to_model_motion
 from motionopt.objective import ContactTerm, MAPObjective, PathTerm, PoseFidelityTerm, Term
-from motionopt.solver import PSOOptions, Problem, SolverOptions, seam_report, solve, window_starts
+from motionopt.solver import (PSOOptions, Problem, SolverOptions, energies_at, free_window_starts, seam_report,
+                              solve)
+from motionopt.solver import diagnostics
 from priors.checkpoint import CHECKPOINT_DIR, load_prior
 
 from priorkit import cmu_clips, tiny_prior
@@ -67,9 +69,9 @@ MASKS = {
 
 @pytest.mark.parametrize("name", list(MASKS))
 @pytest.mark.parametrize("window,overlap", [(34, 17), (10, 3), (8, 0)])
-def test_window_starts_cover_every_free_frame(name, window, overlap):
+def test_free_window_starts_cover_every_free_frame(name, window, overlap):
     free = MASKS[name]
-    starts = window_starts(free, window, overlap)
+    starts = free_window_starts(free, window, overlap)
     covered = np.zeros(len(free), bool)
     for s in starts:
         covered[s:s + window] = True
@@ -86,10 +88,10 @@ def test_window_starts_cover_every_free_frame(name, window, overlap):
     assert all(free[s:s + window].any() for s in starts)
 
 
-def test_window_starts_extend_windows_past_gaps():
+def test_free_window_starts_extend_windows_past_gaps():
     free = MASKS["gap of fixed frames"]
-    assert window_starts(free, 8, 4) == [0, 4, 8, 70, 74, 78, 82, 86, 90, 94]
-    assert window_starts(np.zeros(10, bool), 8, 4) == []
+    assert free_window_starts(free, 8, 4) == [0, 4, 8, 70, 74, 78, 82, 86, 90, 94]
+    assert free_window_starts(np.zeros(10, bool), 8, 4) == []
 
 
 def test_options_are_checked():
@@ -119,12 +121,12 @@ def test_inbetween_keeps_fixed_frames_and_fills_the_gap():
     covered = np.zeros(n, bool)
     for w in res.windows:
         covered[w["frames"][0]:w["frames"][1]] = True
-    assert covered[free].all() and len(res.windows) == len(window_starts(free, 16, 6))
+    assert covered[free].all() and len(res.windows) == len(free_window_starts(free, 16, 6))
     assert res.success and res.fun < res.fun_start and set(res.terms) == {"prior", "join", "contact"}
     assert res.timings["pso"] > 0 and res.nfev > opts.pso.particles * opts.pso.iterations
 
 
-@pytest.mark.parametrize("method", S.METHODS)
+@pytest.mark.parametrize("method", list(S.BACKENDS))
 def test_every_local_optimiser_lowers_the_objective(method):
     prior = tiny_prior()
     objective, problem, _ = denoise(prior, cmu_clips()[0], n=30)
@@ -148,11 +150,46 @@ def test_seam_report_is_the_same_in_chunks(monkeypatch):
     _, x, start = prepared(prior, cmu_clips()[0])
     objective = MAPObjective(prior, prior.skeleton, [])
     whole = seam_report(objective, x, start, [0, 17, 34, 51])
-    monkeypatch.setattr(S, "SEAM_CHUNK", 7)
+    monkeypatch.setattr(diagnostics, "SEAM_CHUNK", 7)
     chunked = seam_report(objective, x, start, [0, 17, 34, 51])
     assert whole.keys() == chunked.keys() and whole
     for k in whole:
         assert abs(whole[k] - chunked[k]) <= 1e-6 * max(1.0, abs(whole[k])), k
+
+
+# ---- energies without optimising ------------------------------------------------------
+def test_energies_at_evaluates_the_solvers_windows():
+    """``energies_at`` on the solver's windows: the solve's terms at its result, with
+    windows side by side (overlap 0), and its start terms when one window covers it.
+
+    Not exact at the result: after each window the solver writes the prior's thresholded
+    contact predictions into the contact features of its frames, which the prior reads
+    as history, so the prior term at the written result moves by about 1e-4 of itself;
+    with the contact features the solve held fixed it is the same to float rounding.
+    The solve also weighs the contact term by the contacts predicted where each window
+    started, ``energies_at`` by those at ``x``; on this denoising problem the tiny prior
+    predicts no planted foot, so the contact term is 0 either way (with planted feet the
+    two differ by far more than 1e-3). At the start, only the first window starts from
+    ``x0`` itself: later ones start after the solved windows before them, so E(x0) is
+    ``terms_start`` for a one-window solve only."""
+    prior = tiny_prior()
+    p = prior.spec.pose_dim
+    objective, problem, _ = denoise(prior, cmu_clips()[0], n=60)
+    side_by_side = SolverOptions(window=20, overlap=0, max_iter=10, pso=None)
+    res = solve(objective, problem, side_by_side)
+    assert len(res.windows) == 3 and res.terms["contact"] == 0.0
+    assert energies_at(objective, problem, res.x, side_by_side) == pytest.approx(res.terms, rel=1e-3)
+
+    objective, problem, _ = denoise(prior, cmu_clips()[0], n=30)
+    one = SolverOptions(max_iter=10, pso=None)
+    res = solve(objective, problem, one)
+    assert len(res.windows) == 1
+    assert energies_at(objective, problem, problem.x0, one) == pytest.approx(res.terms_start, rel=1e-6)
+    held = res.x.clone()
+    held[:, p:] = problem.x0[:, p:]           # the contact features during the solve
+    assert energies_at(objective, problem, held, one) == pytest.approx(res.terms, rel=1e-5)
+    with pytest.raises(ValueError, match="finite features"):
+        energies_at(objective, problem, torch.full_like(problem.x0, float("nan")), one)
 
 
 # ---- determinism with the shipped prior -----------------------------------------------
@@ -202,7 +239,7 @@ def test_callback_stops_the_run(stop_in_window, raise_it):
         return info["window"] == stop_in_window
 
     res = solve(objective, problem, SolverOptions(max_iter=10, pso=None, callback=callback))
-    assert len(res.windows) == stop_in_window + 1 < len(window_starts(problem.free, 34, 17))
+    assert len(res.windows) == stop_in_window + 1 < len(free_window_starts(problem.free, 34, 17))
     assert not res.success and "stopped by callback" in res.message
     assert res.windows[-1]["message"] == "stopped by callback"
     assert set(seen[0]) == {"window", "frames", "x", "best"} and seen[-1]["window"] == stop_in_window

@@ -106,9 +106,9 @@ def _inversion_args(p: argparse.ArgumentParser, out_dir: bool = False, out_requi
 
 
 def _options(args: argparse.Namespace):
-    from problems.latent import LatentOptions
+    from motionopt.solver import InversionOptions
 
-    return LatentOptions(refine_iters=args.refine, pso_iters=args.pso, reg_weight=args.reg)
+    return InversionOptions(refine_iters=args.refine, pso_iters=args.pso, reg_weight=args.reg)
 
 
 def _load(path: str, args: argparse.Namespace):

@@ -118,7 +118,7 @@ def _no_clean_feet_with_latent(args: argparse.Namespace) -> None:
 def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool) -> None:
     """Options every task command shares; ``latent``: it offers --method latent; ``new_frames``:
     it synthesises frames (where the particle swarm works)."""
-    from motionopt.solver import METHODS as OPTIMIZERS, PSOOptions, SolverOptions
+    from motionopt.solver import BACKENDS as OPTIMIZERS, PSOOptions, SolverOptions
 
     io = p.add_argument_group("input and output")
     io.add_argument("--out", required=True, metavar="OUT.bvh",
@@ -229,7 +229,7 @@ def load_latent_prior(motion, args: argparse.Namespace):
 
 def solver_options(args: argparse.Namespace, task: type, progress: "WindowProgress"):
     """The task's default solver options with the command line's knobs applied."""
-    from motionopt.solver import METHODS as OPTIMIZERS, PSOOptions
+    from motionopt.solver import BACKENDS as OPTIMIZERS, PSOOptions
 
     if args.optimizer is not None and args.optimizer not in OPTIMIZERS:
         raise UserError(f"--optimizer {args.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
@@ -248,15 +248,15 @@ def solver_options(args: argparse.Namespace, task: type, progress: "WindowProgre
 
 def latent_options(args: argparse.Namespace):
     """Inversion settings from the command line (--method latent)."""
-    from problems.latent import LatentOptions
+    from motionopt.solver import InversionOptions
 
     for flag, value in (("--optimizer", args.optimizer), ("--pso-particles", args.pso_particles)):
         if value is not None:
             raise UserError(f"{flag} applies to --method ar only")
     if args.no_pso and args.pso_iterations:
         raise UserError("--no-pso turns the particle swarm off; drop --pso-iterations or --no-pso")
-    return LatentOptions(refine_iters=args.iterations or 0, pso_iters=0 if args.no_pso else args.pso_iterations or 0,
-                         seed=args.seed)
+    return InversionOptions(refine_iters=args.iterations or 0,
+                            pso_iters=0 if args.no_pso else args.pso_iterations or 0, seed=args.seed)
 
 
 class WindowProgress:

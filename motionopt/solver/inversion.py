@@ -4,8 +4,9 @@ to W+ codes and back, for clips of any length.
 1. Encoder initialisation: the clip is cut into windows of the prior's length that
    overlap by ``overlap`` frames; each is encoded (with the masked encoder when some
    frames are unseen) in one batched pass.
-2. Optional PSO (pyswarms) on a low-dimensional subspace: offsets along the first
-   principal components of W, one set per window, shared by all layers of the window.
+2. Optional particle swarm (``swarm.particle_swarm``) on a low-dimensional subspace:
+   offsets along the first principal components of W, one set per window, shared by
+   all layers of the window.
 3. Optional L-BFGS refinement of all W+ codes against task terms plus a regulariser
    that keeps every code near the mapping network's distribution (squared whitened
    distance to the mean w, per dimension).
@@ -23,22 +24,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..prior import LatentMotionPrior
+from .options import InversionOptions
+from .swarm import particle_swarm
+
 #: A task term: normalised features (T, D) of the whole clip -> scalar energy.
 TaskTerm = Callable[[Tensor], Tensor]
-
-
-@dataclass(frozen=True)
-class InversionOptions:
-    """How to invert. ``refine_iters`` 0 means encoder only; ``pso_iters`` 0 means no PSO."""
-
-    overlap: int = 16
-    refine_iters: int = 0
-    reg_weight: float = 0.05
-    pso_iters: int = 0
-    pso_particles: int = 16
-    pso_components: int = 8
-    pso_bound: float = 2.0
-    seed: int = 0
 
 
 @dataclass
@@ -54,7 +45,7 @@ class InversionResult:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def window_starts(n_frames: int, window: int, overlap: int) -> list[int]:
+def clip_window_starts(n_frames: int, window: int, overlap: int) -> list[int]:
     """First frames of windows covering ``n_frames``; consecutive windows overlap by at
     least ``overlap`` frames and the last one ends at the clip's end. A clip shorter than
     a window gets one window (padded by the caller)."""
@@ -103,13 +94,13 @@ def blend(windows: Tensor, starts: list[int], n_frames: int) -> Tensor:
     return out[:n_frames]
 
 
-def regulariser(prior, wplus: Tensor) -> Tensor:
+def regulariser(prior: LatentMotionPrior, wplus: Tensor) -> Tensor:
     """Mean squared whitened distance of every code to the mean w (about 1 for samples
     of the mapping network): keeps refined codes where the generator was trained."""
     return prior.whiten(wplus).pow(2).mean()
 
 
-def encode_clip(prior, x: Tensor, mask: Tensor | None, starts: list[int]) -> Tensor:
+def encode_clip(prior: LatentMotionPrior, x: Tensor, mask: Tensor | None, starts: list[int]) -> Tensor:
     """W+ codes (N, num_ws, w_dim) of the windows of a (padded) clip."""
     win = cut_windows(x, starts, prior.window)
     if mask is None or bool(mask.all()):
@@ -117,7 +108,7 @@ def encode_clip(prior, x: Tensor, mask: Tensor | None, starts: list[int]) -> Ten
     return prior.encode_masked(win, cut_windows(mask, starts, prior.window))
 
 
-def invert(prior, x: Tensor, mask: Tensor | None = None, terms: list[TaskTerm] | None = None,
+def invert(prior: LatentMotionPrior, x: Tensor, mask: Tensor | None = None, terms: list[TaskTerm] | None = None,
            options: InversionOptions = InversionOptions(), wplus: Tensor | None = None) -> InversionResult:
     """Features of the latent prior's motion nearest ``x (T, D)`` (normalised) under ``terms``.
 
@@ -131,7 +122,7 @@ def invert(prior, x: Tensor, mask: Tensor | None = None, terms: list[TaskTerm] |
     n = len(x)
     seen = torch.ones(n, dtype=torch.bool) if mask is None else mask.bool()
     xp, mp = pad_to_window(x.float(), seen, prior.window)
-    starts = window_starts(len(xp), prior.window, options.overlap)
+    starts = clip_window_starts(len(xp), prior.window, options.overlap)
     with torch.no_grad():
         codes = encode_clip(prior, xp, mp, starts) if wplus is None else wplus.float()
     timings = {"encode": time.perf_counter() - t0}
@@ -184,16 +175,15 @@ def refine(codes: Tensor, energy: Callable[[Tensor], Tensor], iters: int) -> tup
     return best["x"], int(opt.state[opt._params[0]].get("n_iter", 0))
 
 
-def pso_subspace(prior, codes: Tensor, energy: Callable[[Tensor], Tensor], options: InversionOptions) -> Tensor:
+def pso_subspace(prior: LatentMotionPrior, codes: Tensor, energy: Callable[[Tensor], Tensor],
+                 options: InversionOptions) -> Tensor:
     """Particle swarm over offsets along the first ``pso_components`` principal directions
     of W (in standard deviations, within +-``pso_bound``), one offset per window added to
-    all its layers. The encoder's codes are one particle, so the result is never worse."""
-    import pyswarms as ps
-
+    all its layers. The encoder's codes are one particle, so the result is never worse.
+    Needs the prior's principal directions ``w_components`` and scales ``w_scales``."""
     k = options.pso_components
     basis = (prior.w_components[:k] * prior.w_scales[:k, None]).to(codes)  # (k, w_dim)
     n_win = len(codes)
-    dims = n_win * k
 
     def codes_of(c: Tensor) -> Tensor:
         return codes + (c.reshape(n_win, k) @ basis)[:, None, :]
@@ -202,16 +192,6 @@ def pso_subspace(prior, codes: Tensor, energy: Callable[[Tensor], Tensor], optio
     def cost(particles: np.ndarray) -> np.ndarray:
         return np.array([float(energy(codes_of(torch.from_numpy(p).to(codes)))) for p in particles])
 
-    rng = np.random.default_rng(options.seed)
-    init = rng.uniform(-options.pso_bound, options.pso_bound, (options.pso_particles, dims)) * 0.5
-    init[0] = 0.0
-    bounds = (np.full(dims, -options.pso_bound), np.full(dims, options.pso_bound))
-    np_state = np.random.get_state()
-    np.random.seed(options.seed)  # pyswarms draws from numpy's global generator
-    try:
-        opt = ps.single.GlobalBestPSO(options.pso_particles, dims, {"c1": 0.5, "c2": 0.3, "w": 0.7},
-                                      bounds=bounds, init_pos=init)
-        best_cost, best = opt.optimize(cost, iters=options.pso_iters, verbose=False)
-    finally:
-        np.random.set_state(np_state)
+    _, best = particle_swarm(cost, n_win * k, particles=options.pso_particles, iterations=options.pso_iters,
+                             bound=options.pso_bound, seed=options.seed)
     return codes_of(torch.from_numpy(best).to(codes)).detach()

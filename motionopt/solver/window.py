@@ -1,0 +1,206 @@
+"""The variables of one window and the window objective over them (``Window``).
+
+The local optimisers see a flat vector; ``Window`` maps it to normalised features of
+the window's frames (valid rotations at every iterate, preconditioned so that all
+variables share the prior's units) and evaluates the objective with its gradient,
+remembering the best point it has seen.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .. import rotations as R
+from ..features import RootStart
+from ..objective import MAPObjective, NonFiniteTermError
+
+#: Cosine components over a window added to the per-frame variables (see ``Window``).
+BASIS_SIZE = 8
+
+
+def dct_basis(n: int, k: int) -> Tensor:
+    """(k, n) the first ``k`` DCT-II cosines over ``n`` samples (unnormalised)."""
+    t = torch.arange(n, dtype=torch.float32)
+    rows = [torch.cos(math.pi * (t + 0.5) * j / n) for j in range(k)]
+    return torch.stack(rows)
+
+
+def _coarse_basis(n: int, k: int, power: float = 1.0) -> Tensor:
+    """(n, k) orthonormal cosine columns, column j scaled by (n / (pi (j + 1/2)))^power.
+
+    The prior scores each frame against the one before it, so its curvature along the
+    j-th cosine over n frames is about (pi j / n)^2 times that of a single frame: with
+    ``power`` 1 a step on a column moves the slow directions as far as the per-frame
+    variables move the fast ones (a diagonal preconditioner in the cosine basis). The
+    root displacement and yaw channels integrate into positions, where task terms make
+    the slow directions stiff again; they take ``power`` 1/2 (with 1 the first L-BFGS
+    step can throw the root a metre when the start is already on target)."""
+    b = dct_basis(n, k).T
+    b = b / b.norm(dim=0, keepdim=True)
+    return b * (n / (math.pi * (torch.arange(k, dtype=torch.float32) + 0.5))) ** power
+
+
+_HAT = torch.tensor([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                     [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                     [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=torch.float64)
+
+
+def _tangent_whitening(base: Tensor, std6: Tensor) -> Tensor:
+    """(..., R, 3, 3) matrices P such that a rotation vector ``P z`` applied on the right of
+    ``base (..., R, 3, 3)`` changes the normalised 6D features (std ``std6 (R, 6)``) by
+    about |z|: the prior's curvature is then alike in every direction of every joint
+    (a hinge-like joint's 6D entries vary 100 times less than a shoulder's)."""
+    g = base[..., None, :, :] @ _HAT.to(base)                                # (..., R, 3, 3, 3)
+    jac = torch.cat((g[..., :, 0], g[..., :, 1]), dim=-1) / std6[:, None, :]  # (..., R, 3, 6)
+    evals, evecs = torch.linalg.eigh(jac @ jac.transpose(-1, -2))
+    return evecs @ torch.diag_embed(evals.clamp_min(1e-12).rsqrt()) @ evecs.transpose(-1, -2)
+
+
+class Window:
+    """One window's optimisation: frames ``frames`` of the sequence, starting from ``x``
+    (their normalised features), after ``context`` (the prior's history) and
+    ``lead_raw`` (the last solved frames, unnormalised, decoded from ``start``).
+
+    Variables per free frame: offsets to the four root features (normalised units) and a
+    rotation vector per joint applied on the right of the frame's starting rotation, so
+    every iterate holds valid rotations (never a 6D vector off the rotation manifold the
+    prior was trained on); plus the prior's input noise when the objective has one.
+    Rotation vectors are whitened (see ``_tangent_whitening``) so that all variables share
+    the normalised units the prior scores. The offsets are the sum of a per-frame part
+    and a few scaled cosine components over the window (see ``_coarse_basis``): a step on
+    those moves many frames together, which the prior's stiff coupling between
+    neighbouring frames otherwise makes L-BFGS do very slowly. Contact weights are fixed
+    at the start (``rebase``), so the objective is smooth during a local solve.
+
+    Zero variables stand for the frames at the last ``rebase``; ``fun`` keeps the best
+    point evaluated (``best``, with its terms) and the terms of the first (``first_terms``).
+    """
+
+    def __init__(self, objective: MAPObjective, x: Tensor, frames: np.ndarray, free_local: np.ndarray,
+                 context: Tensor, lead_raw: Tensor, start: RootStart, with_noise: bool):
+        self.obj = objective
+        self.x = x.clone()
+        self.frames = frames
+        self.free_np = free_local
+        self.free = torch.from_numpy(free_local)
+        self.all_free = bool(free_local.all())
+        self.context = context
+        self.lead_raw = lead_raw
+        self.start = start
+        self.p = objective.spec.pose_dim
+        self.n_rot = len(objective.spec.joints)
+        self.k = 4 + 3 * self.n_rot
+        self.with_noise = with_noise
+        self.n_free = int(free_local.sum())
+        self.n_basis = min(BASIS_SIZE, self.n_free)
+        self.basis = _coarse_basis(self.n_free, self.n_basis) if self.n_free else torch.zeros(0, 0)
+        self.basis_root = _coarse_basis(self.n_free, self.n_basis, 0.5) if self.n_free else torch.zeros(0, 0)
+        self.n_vars = (self.n_basis + self.n_free) * self.k
+        self.size = self.n_vars + (self.n_free * self.p if with_noise else 0)
+        norm = objective.prior.normalizer
+        self._mean6 = norm.mean[4:self.p].float()
+        self._std6 = norm.std[4:self.p].float()
+        self.nfev = 0
+        self.prior_seconds = 0.0       # decoding windows and scoring them under the prior
+        self.objective_seconds = 0.0   # objective and gradient evaluations, all included
+        self.best: tuple[float, np.ndarray | None] = (math.inf, None)
+        self.best_terms: dict[str, float] = {}
+        self.first_terms: dict[str, float] | None = None
+        self.seen: dict[int, float] = {}   # objective of every evaluated point, by hash
+        self._base_rot: Tensor | None = None
+        self._whiten: Tensor | None = None
+        self.contacts: Tensor | None = None
+
+    # --- variables <-> window tensors -------------------------------------------------
+    def rebase(self) -> None:
+        """Take the current window frames as the point that zero variables stand for, and
+        fix the contact weights to the prior's prediction there."""
+        norm = self.obj.prior.normalizer
+        raw = norm.denormalize(self.x[self.free].double())
+        base = R.sixd_to_matrix(raw[:, 4:self.p].reshape(self.n_free, self.n_rot, 6))
+        self._base_rot = base.float()
+        self._whiten = _tangent_whitening(base, norm.std[4:self.p].double().reshape(self.n_rot, 6)).float()
+        self._root0 = self.x[self.free, :4]
+        self._tail = self.x[self.free, self.p:]
+        with torch.no_grad():
+            _, self.contacts = self.obj.prior.nll_and_contacts(self.x, self.context)
+        self.best = (math.inf, None)
+        self.best_terms, self.first_terms, self.seen = {}, None, {}
+
+    def pack(self) -> np.ndarray:
+        """The variables of the current base: all zeros."""
+        return np.zeros(self.size)
+
+    def unpack(self, v: Tensor) -> tuple[Tensor, Tensor | None]:
+        """Window features (..., T, D) and input noise (or None) of variables ``v (..., size)``."""
+        if self._base_rot is None:
+            self.rebase()
+        lead = v.shape[:-1]
+        nk = self.n_vars
+        coarse = v[..., :self.n_basis * self.k].reshape(*lead, self.n_basis, self.k)
+        u = v[..., self.n_basis * self.k:nk].reshape(*lead, self.n_free, self.k) + torch.cat(
+            (self.basis_root @ coarse[..., :4], self.basis @ coarse[..., 4:]), dim=-1)
+        z = u[..., 4:].reshape(*lead, self.n_free, self.n_rot, 3, 1)
+        mats = self._base_rot @ R.axis_angle_to_matrix((self._whiten @ z)[..., 0])
+        six = (R.matrix_to_6d(mats).reshape(*lead, self.n_free, 6 * self.n_rot) - self._mean6) / self._std6
+        rows = torch.cat((self._root0 + u[..., :4], six, self._tail.expand(*lead, *self._tail.shape)), dim=-1)
+        if self.all_free:
+            x = rows
+        else:
+            x = self.x.expand(*lead, *self.x.shape).clone()
+            x[..., self.free, :] = rows
+        noise = None
+        if self.with_noise:
+            noise = torch.zeros_like(x)
+            noise[..., self.free, :self.p] = v[..., nk:].reshape(*lead, self.n_free, self.p)
+        return x, noise
+
+    def state(self, v: Tensor):
+        """The objective's decoded window state at variables ``v``."""
+        x, noise = self.unpack(v)
+        t0 = time.perf_counter()
+        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, noise, self.contacts)
+        self.prior_seconds += time.perf_counter() - t0
+        return st
+
+    def energies(self, v: Tensor) -> dict[str, Tensor]:
+        """Every active term's energy."""
+        return self.obj.energies(self.state(v))
+
+    def _check(self, e: dict[str, Tensor]) -> None:
+        for name, val in e.items():
+            if not bool(torch.isfinite(val).all()):
+                raise NonFiniteTermError(name, f"in frames {self.frames[0]}-{self.frames[-1]}")
+
+    # --- scalar objective with gradient -----------------------------------------------
+    def fun(self, v_np: np.ndarray) -> tuple[float, np.ndarray]:
+        """Objective and gradient at ``v_np`` (what the optimisers call); records the point."""
+        t0 = time.perf_counter()
+        v = torch.tensor(v_np, dtype=torch.float32, requires_grad=True)
+        st = self.state(v)
+        e = self.obj.energies(st)
+        self._check(e)
+        total = sum(e.values())
+        (g,) = torch.autograd.grad(total, v)
+        self.nfev += 1
+        terms = {k: float(t.detach()) for k, t in e.items()}
+        f = sum(terms.values())
+        g = g.numpy().astype(np.float64)
+        if not np.isfinite(g).all():
+            raise NonFiniteTermError("gradient", f"in frames {self.frames[0]}-{self.frames[-1]}")
+        if self.first_terms is None:
+            self.first_terms = terms
+        self.seen[hash(v_np.tobytes())] = f
+        if f < self.best[0]:
+            self.best, self.best_terms = (f, v_np.copy()), terms
+        self.objective_seconds += time.perf_counter() - t0
+        return f, g
+
+    def values(self, v_np: np.ndarray) -> dict[str, float]:
+        """Every term's value at ``v_np`` (no gradient)."""
+        with torch.no_grad():
+            return {k: float(t) for k, t in self.energies(torch.tensor(v_np, dtype=torch.float32)).items()}
