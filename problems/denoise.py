@@ -139,3 +139,13 @@ class Denoise:
                           {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz, "refine": self.refine,
                            "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
                            "smoothers": smoothers})
+
+    def summary(self, result: TaskResult) -> list[str]:
+        """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""
+        m = result.metrics
+        return [f"jitter (mean jerk): {m['jerk_input_m_per_s3']:.0f} -> {m['jerk_output_m_per_s3']:.0f} m/s^3, "
+                "input -> output",
+                f"foot skating: {m['foot_skating_input_cm_per_s']:.1f} -> {m['foot_skating_output_cm_per_s']:.1f} "
+                "cm/s, input -> output",
+                f"joints moved {m['mean_change_cm']:.2f} cm on average",
+                f"speed: {m['frames_per_second']:.0f} frames per second"]

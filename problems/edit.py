@@ -323,3 +323,11 @@ class SpatialEdit:
         return TaskResult(prep.to_file(model), model, result, metrics,
                           {"sigma_target": self.sigma_target, "targets": len(self.targets), "falloff": self.falloff,
                            "refine": self.refine}, warned(self.miss_warnings(model, per_target)))
+
+    def summary(self, result: TaskResult) -> list[str]:
+        """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""
+        m = result.metrics
+        return [f"targets met within {m['target_error_cm_max']:.2f} cm ({m['target_error_cm_mean']:.2f} cm on average)",
+                f"frames away from the targets moved {m['untouched_frames_change_cm_max']:.2f} cm at most, the "
+                f"frames near them {m['edited_frames_change_cm_mean']:.2f} cm on average",
+                f"speed: {m['frames_per_second']:.0f} frames per second"]

@@ -132,6 +132,15 @@ class Inbetween:
                                                         "gap_temperature": self.gap_temperature,
                                                         "refine": self.refine}, warnings)
 
+    def summary(self, result: TaskResult) -> list[str]:
+        """The metrics of ``result`` (of ``solve``) in sentences, for the command line; the
+        joins only where a gap comes before a kept frame (prefix completion has none)."""
+        m = result.metrics
+        errors = ", ".join(f"{e:.1f}" for e in m["join_root_error_cm"])
+        joins = [f"gaps meet the kept frames within {errors} cm (root)"] if errors else []
+        return [f"{m['synthesised_frames']} frames synthesised", *joins,
+                f"speed: {m['frames_per_second']:.0f} frames per second"]
+
     def gap_warnings(self, prep) -> list[str]:
         """Each gap whose kept frames on either side lie too far apart on the ground for a
         person to cover in the gap's time: the gap, the distance and the speed it implies."""

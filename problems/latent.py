@@ -27,6 +27,7 @@ from priors.latent import LatentPrior
 from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
 
 from .common import Prepared, prepare
+from .inbetween import check_ranges
 
 
 def load_latent_for(motion: Motion, path: str | None = None) -> LatentPrior:
@@ -194,13 +195,51 @@ def hold_last_frame(motion: Motion, n_frames: int) -> Motion:
 def complete(prior: LatentPrior, motion: Motion, prefix: int, n_frames: int,
              options: InversionOptions = InversionOptions()) -> LatentTaskResult:
     """Prefix completion (MoDi 4): keep the first ``prefix`` frames, generate up to ``n_frames``."""
-    if not 0 < prefix <= motion.num_frames:
-        raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
-    if n_frames <= prefix:
-        raise ValueError(f"--frames {n_frames} must be larger than --prefix {prefix}")
-    seen = np.zeros(n_frames, bool)
-    seen[:prefix] = True
-    return infill(prior, hold_last_frame(motion[:prefix], n_frames), seen, options)
+    return LatentTask.completion(motion, prefix, n_frames, prior, options).solve()
+
+
+@dataclass
+class LatentTask:
+    """A task solved by inverting the latent prior, as an object that the commands run like
+    the autoregressive tasks (``options``, ``solve``, ``summary``): with ``keep`` None,
+    ``reconstruct`` the whole of ``motion`` (denoising); else ``infill`` the frames outside
+    ``keep``, half-open ranges of the input's frames with the first from frame 0 (as
+    ``problems.inbetween.check_ranges`` takes them): in-betweening, and prefix completion
+    (``LatentTask.completion``)."""
+
+    motion: Motion
+    prior: LatentPrior
+    keep: list[tuple[int, int]] | None = None
+    options: InversionOptions = field(default_factory=InversionOptions)
+
+    def __post_init__(self) -> None:
+        if self.keep is not None:
+            self.keep = check_ranges(list(self.keep), self.motion.num_frames)
+
+    @classmethod
+    def completion(cls, motion: Motion, prefix: int, n_frames: int, prior: LatentPrior,
+                   options: InversionOptions = InversionOptions()) -> LatentTask:
+        """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``."""
+        if not 0 < prefix <= motion.num_frames:
+            raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
+        if n_frames <= prefix:
+            raise ValueError(f"--frames {n_frames} must be larger than --prefix {prefix}")
+        return cls(hold_last_frame(motion[:prefix], n_frames), prior, [(0, prefix)], options)
+
+    def solve(self) -> LatentTaskResult:
+        if self.keep is None:
+            return reconstruct(self.prior, self.motion, self.options)
+        seen = np.zeros(self.motion.num_frames, bool)
+        for a, b in self.keep:
+            seen[a:b] = True
+        return infill(self.prior, self.motion, seen, self.options)
+
+    def summary(self, result: LatentTaskResult) -> list[str]:
+        """How the inversion of ``result`` (of ``solve``) went, in a sentence for the command line."""
+        inv = result.inversion
+        how = f"refined in {inv.nit} iterations" if inv.nit else "from the encoder alone"
+        fit = "" if inv.objective is None else f"; fidelity objective {inv.objective_start:.4g} -> {inv.objective:.4g}"
+        return [f"latent codes of {len(inv.starts)} windows {how}{fit}"]
 
 
 def directions(prior: LatentPrior) -> dict[str, Direction]:

@@ -229,6 +229,17 @@ class PathFollow:
                     "temperature": self.options.temperature_for(prior)}
         return TaskResult(motion, model, result, metrics, settings, warnings)
 
+    def summary(self, result: TaskResult) -> list[str]:
+        """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""
+        m = result.metrics
+        return [f"root distance to the path: {m['path_distance_cm_mean']:.1f} cm on average, "
+                f"{m['path_distance_cm_max']:.1f} cm at most",
+                f"the motion ends {m['end_distance_to_path_end_m']:.2f} m from the path's end",
+                f"{m['new_frames']} new frames at the prior's rate, at {m['speed_m_per_s']:.2f} m/s",
+                f"foot skating: {m['foot_skating_cm_per_s']:.1f} cm/s (mocap: a few cm/s)",
+                f"naturalness: {m['prior_nll_per_frame']:.1f} nats per frame under the prior (lower is more natural)",
+                f"speed: {m['frames_per_second']:.0f} frames per second"]
+
     def speed_warnings(self, speed: float, join: float) -> list[str]:
         """Where the timing asks the root to go faster than a person: the path's speed
         (``speed``, requested or the seed's; with times, their fastest stretch), and the

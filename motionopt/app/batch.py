@@ -1,9 +1,11 @@
 """Run one task over every BVH file of a folder tree: resumable, fault tolerant, on Dask.
 
 A batch mirrors the input tree in the output folder: ``IN/a/take.bvh`` becomes
-``OUT/a/take.bvh`` with its report ``OUT/a/take.json``. Each file runs the same code
-as the single-file command (``motionopt TASK take.bvh --out ... --report ...``), so a
-batch result is exactly what that command gives.
+``OUT/a/take.bvh`` with its report ``OUT/a/take.json``. Each file is what the
+single-file command (``motionopt TASK take.bvh --out ... --report ...``) gives: the
+command's own parser reads its options, its entry (``cli.tasks.TASKS``) builds the task
+object, and the command's writer writes the outputs and report, so a batch result is
+exactly what that command gives.
 
 Why the pieces are as they are:
 
@@ -36,9 +38,9 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from ..atomic import write_text_atomic
+from .cli import USER_ERRORS, build_parser, error_message
+from .cli.tasks import TASKS, solve, start, write_result
 
-#: Tasks a batch can run: the single-file commands of the same names.
-TASKS = ("denoise", "inbetween", "complete", "edit", "path-follow")
 MANIFEST = "batch-manifest.jsonl"
 SUMMARY = "batch-summary"
 MANIFEST_VERSION = 1
@@ -151,10 +153,8 @@ def sha256(path: Path) -> str:
 # ---- one file (runs on a worker) -----------------------------------------------------------------
 
 def run_file(job: FileJob, threads: int | None = None) -> FileResult:
-    """Run the task's command on one file and return its result; never raises for a
-    failure of the file (the error is recorded), so one file cannot stop a batch."""
-    from .cli import run_command
-
+    """Run the task on one file and return its result; never raises for a failure of the
+    file (the error is recorded), so one file cannot stop a batch."""
     if threads is not None:
         import torch
 
@@ -164,21 +164,33 @@ def run_file(job: FileJob, threads: int | None = None) -> FileResult:
     try:
         result.input_sha256 = sha256(job.input)
         job.output.parent.mkdir(parents=True, exist_ok=True)
-        argv = [job.task, str(job.input), "--out", str(job.output), "--report", str(job.report), "--force",
-                "--quiet", "--max-frames", str(job.max_frames), *job.options]
-        error = run_command(argv)
-        if error is None:
-            report = json.loads(job.report.read_text())
-            result.status, result.metrics = "ok", _scalars(report.get("metrics", {}))
+        try:
+            report = run_task(job)
+        except USER_ERRORS as e:
+            result.error = error_message(e)
+        else:
+            result.status, result.metrics = "ok", _scalars(report["metrics"])
             result.warnings = [str(w) for w in report.get("warnings", [])]
             result.output, result.report = str(job.output), str(job.report)
             result.output_sha256 = sha256(job.output)
-        else:
-            result.error = error
     except Exception as e:  # noqa: BLE001 - a batch records any failure of a file and goes on
         result.error = f"{type(e).__name__}: {e} (at {_where(e)})"
     result.seconds = time.perf_counter() - started
     return result
+
+
+def run_task(job: FileJob) -> dict:
+    """Solve the job's task as ``motionopt TASK INPUT --out OUTPUT --report REPORT --force
+    --quiet --max-frames N OPTIONS`` would, through the command's entry and writer, and
+    return the report it wrote. Errors of the file are the command's user errors."""
+    argv = [job.task, str(job.input), "--out", str(job.output), "--report", str(job.report), "--force", "--quiet",
+            "--max-frames", str(job.max_frames), *job.options]
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:
+        raise BatchError(f"invalid arguments {argv[1:]} (exit status {e.code})") from None
+    run = start(args)
+    return write_result(run, solve(run))
 
 
 def _where(e: BaseException) -> str:

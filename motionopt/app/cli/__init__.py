@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    args.task_options = extra
+    if getattr(args, "takes_task_options", False):
+        args.task_options = extra
     level = logging.ERROR if getattr(args, "quiet", False) else (
         logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
@@ -99,21 +100,6 @@ def main(argv: list[str] | None = None) -> int:
 def error_message(e: Exception) -> str:
     """The one line a user error is reported with."""
     return e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-
-
-def run_command(argv: list[str]) -> str | None:
-    """Run one command in this process (as ``main`` would) for a caller that collects
-    errors instead of printing them, such as a batch: None on success, else the error."""
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as e:
-        return f"invalid arguments {argv[1:]} (exit status {e.code})"
-    try:
-        status = int(args.func(args) or 0)
-    except USER_ERRORS as e:
-        return error_message(e)
-    return None if status == 0 else f"exit status {status}"
 
 
 if __name__ == "__main__":

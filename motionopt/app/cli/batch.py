@@ -6,11 +6,10 @@ import sys
 from pathlib import Path
 
 from . import UserError, add_common, build_parser
+from .tasks import TASKS
 
 
 def register(sub) -> None:
-    from motionopt.app.batch import TASKS
-
     p = sub.add_parser(
         "batch", help="run a task over every BVH file of a folder tree (resumable, on Dask)", allow_abbrev=False,
         usage="motionopt batch TASK --in DIR --out DIR [--workers N | --scheduler ADDRESS] [--max-frames N] "

@@ -1,10 +1,16 @@
 """The editing task commands: path-follow, denoise, inbetween, complete, edit.
 
-Every command checks all of its inputs and outputs before solving, so that a mistake
-costs no time and writes nothing; then it runs the task class from ``problems/`` (or
-the latent prior's inversion with ``--method latent``), shows a progress bar over the
-solver's windows, writes the BVH with ``bvh.save`` (atomic), and optionally a JSON
-report (``--report``) and a picture next to the output (``--plot``).
+Each command is one entry of ``TASKS``: its help, its own arguments, and how the parsed
+arguments become a task object of ``problems/`` (the latent prior's ``LatentTask`` with
+``--method latent``). Every command then runs the same steps, which the batch shares:
+``start`` checks all inputs and outputs before solving, so that a mistake costs no time
+and writes nothing, and builds the task; ``solve`` runs it with a progress bar over the
+solver's windows; ``write_result`` writes the BVH with ``bvh.save`` (atomic), the optional
+picture (``--plot``) and JSON report (``--report``); the command prints the task's own
+summary (``task.summary(result)``).
+
+Adding a task: its module in ``problems/`` (a class with ``options``, ``solve()`` and
+``summary(result)``) and one entry in ``TASKS``.
 """
 from __future__ import annotations
 
@@ -14,13 +20,20 @@ import logging
 import shlex
 import sys
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 from motionopt.atomic import write_text_atomic
 
 from . import UserError, add_common
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from motionopt.motion import Motion
+    from motionopt.solver import InversionOptions, SolverOptions
 
 log = logging.getLogger(__name__)
 
@@ -29,69 +42,24 @@ METHODS = ("ar", "latent")
 POSITIONAL = ("input",)
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "path-follow", help="continue a motion so that its root walks along a path on the ground",
-        description="Continue SEED.bvh along the ground path in PATH.csv (a header line 'x,z', optionally "
-        "'t' in seconds after the seed's end, then one point per line; metres in the seed file's world "
-        "coordinates). OUT.bvh holds the seed's frames followed by the new motion. --plot draws the root's "
-        "path against the target path.")
-    p.add_argument("input", metavar="SEED.bvh", help="motion whose end the new motion continues")
-    p.add_argument("--path", required=True, metavar="PATH.csv", help="ground points to follow (x,z[,t])")
-    p.add_argument("--seconds", type=_positive(float), default=None, metavar="S",
-                   help="seconds of new motion (default: enough to reach the path's end)")
-    p.add_argument("--speed", type=_positive(float), default=None, metavar="M_PER_S",
-                   help="walking speed along the path (default: the seed's recent speed, at least 1 m/s); "
-                   "not with a t column")
-    _add_task_options(p, latent=False, new_frames=True)
-    p.set_defaults(func=cmd_path_follow)
+class Task(Protocol):
+    """What the commands need of a task object: solver settings to adjust, a solve, and
+    sentences about its result."""
 
-    p = sub.add_parser(
-        "denoise", help="clean captured motion: remove jitter, foot sliding and ground penetration",
-        description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
-        "Savitzky-Golay filter of least estimated risk for it. --clean-feet then plants the feet by leg IK. "
-        "--refine then adds the MAP solve: fidelity to the input's root and joint "
-        "angles, the prior and contact terms. --plot draws a foot's trajectory before and after.")
-    p.add_argument("input", metavar="INPUT.bvh", help="motion to clean")
-    _add_task_options(p, latent=True, new_frames=False)
-    _add_clean_feet(p)
-    p.set_defaults(func=cmd_denoise)
+    options: Any
 
-    p = sub.add_parser(
-        "inbetween", help="fill the frames between kept frame ranges",
-        description="Keep the frames inside --keep exactly and synthesise the frames between them so that "
-        "each gap meets the next kept frames without a jump. --plot draws a filmstrip of output and input.")
-    p.add_argument("input", metavar="INPUT.bvh", help="motion whose kept frames are used")
-    p.add_argument("--keep", required=True, metavar="RANGES",
-                   help="half-open frame ranges to keep, like Python slices, e.g. 0:30,60:90 (frames 0-29 and "
-                   "60-89 of INPUT.bvh); the first range must start at 0")
-    _add_task_options(p, latent=True, new_frames=True)
-    _add_clean_feet(p)
-    p.set_defaults(func=cmd_inbetween)
+    def solve(self) -> Any: ...
 
-    p = sub.add_parser(
-        "complete", help="continue the first frames of a motion (prefix completion)",
-        description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
-        "--frames frames in all (both in INPUT.bvh's frame rate). --plot draws a filmstrip of output and "
-        "input.")
-    p.add_argument("input", metavar="INPUT.bvh", help="motion whose first frames are kept")
-    p.add_argument("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep")
-    p.add_argument("--frames", required=True, type=_positive(int), metavar="N",
-                   help="frames of the output, prefix included")
-    _add_task_options(p, latent=True, new_frames=True)
-    _add_clean_feet(p)
-    p.set_defaults(func=cmd_complete)
+    def summary(self, result: Any) -> list[str]: ...
 
-    p = sub.add_parser(
-        "edit", help="move chosen joints to targets at chosen frames (spatial edit)",
-        description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or "
-        "[I, J], \"position\": [x, y, z] (metres, world) or \"offset\": [dx, dy, dz]}, while the rest of "
-        "the motion stays close to the input and natural. --plot draws a filmstrip of output and input. "
-        "(--method latent is not available for spatial edits yet.)")
-    p.add_argument("input", metavar="INPUT.bvh", help="motion to edit")
-    p.add_argument("--targets", required=True, metavar="TARGETS.json", help="joint targets")
-    _add_task_options(p, latent=True, new_frames=False)
-    p.set_defaults(func=cmd_edit)
+
+#: One ``add_argument`` call as data: the flags and the keywords.
+Arg = tuple[tuple[str, ...], dict]
+
+
+def arg(*flags: str, **options: Any) -> Arg:
+    """An argument of a task entry: what ``add_argument`` takes."""
+    return flags, options
 
 
 def _positive(kind: type) -> Callable[[str], float | int]:
@@ -104,21 +72,186 @@ def _positive(kind: type) -> Callable[[str], float | int]:
     return parse
 
 
-def _add_clean_feet(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--clean-feet", action="store_true",
-                   help="plant the feet the prior finds in contact by leg IK: no sliding, at a cost of "
-                   "centimetres in fidelity (not with --method latent)")
+def _problems() -> ModuleType:
+    """The ``problems`` package with its task modules, imported when a task runs rather than
+    when the parser is built: they load the solver stack, which ``--help`` does not need."""
+    import problems.denoise
+    import problems.edit
+    import problems.inbetween
+    import problems.latent
+    import problems.path_follow
+
+    return problems
 
 
-def _no_clean_feet_with_latent(args: argparse.Namespace) -> None:
-    if args.method == "latent" and args.clean_feet:
-        raise UserError("--clean-feet works with --method ar only")
+# ---- pictures (--plot) -----------------------------------------------------------------------------
+
+def _filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
+    """A filmstrip of output over input, six moments spread over the output."""
+    import numpy as np
+
+    from motionopt import plot
+
+    n = result.motion.num_frames
+    frames = np.unique(np.linspace(0, n - 1, min(6, n)).round().astype(int)).tolist()
+    plot.plot_filmstrip({"output": result.motion, "input": motion}, out, frames=frames,
+                        title="Output (top) and input", force=True)
 
 
-def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool) -> None:
-    """Options every task command shares; ``latent``: it offers --method latent; ``new_frames``:
+def _root_paths(task: Task, seed: Motion, result, out: Path) -> None:
+    """The root's path over the ground against the target path."""
+    from motionopt import plot
+
+    plot.plot_root_paths({"output": result.motion, "seed": seed}, out, target=task.path,
+                         title="Root path and target path", force=True)
+
+
+def _foot_trajectory(task: Task, motion: Motion, result, out: Path) -> None:
+    """A foot's trajectory before and after."""
+    from motionopt import plot
+
+    plot.plot_joint_trajectories({"input": motion, "denoised": result.motion}, task.prior.spec.contact_joints[0],
+                                 out, force=True)
+
+
+# ---- the task entries ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class TaskEntry:
+    """One task command: its help, its own ``arguments`` (the input first), and how the
+    parsed arguments become its task object.
+
+    ``build(args, inputs, motion, prior)`` makes the task object for the autoregressive
+    prior, ``latent`` (same arguments) for ``--method latent``; ``latent_refused``: the
+    command offers ``--method`` only to say why latent is not available; neither: no
+    ``--method``. ``read(args, motion)`` checks the command's own inputs and reads its
+    files once the input is loaded, before the prior is; what it returns is ``inputs``.
+    ``draw(task, motion, result, path)`` draws the ``--plot`` picture. ``new_frames``: the
+    task synthesises frames (where the particle swarm works)."""
+
+    help: str
+    description: str
+    arguments: tuple[Arg, ...]
+    build: Callable[[argparse.Namespace, Any, Motion, Any], Task]
+    latent: Callable[[argparse.Namespace, Any, Motion, Any], Task] | None = None
+    latent_refused: str | None = None
+    read: Callable[[argparse.Namespace, Motion], Any] = lambda args, motion: None
+    draw: Callable[[Task, Motion, Any, Path], None] = _filmstrip
+    new_frames: bool = True
+
+    @property
+    def offers_method(self) -> bool:
+        """Whether the command has --method."""
+        return self.latent is not None or self.latent_refused is not None
+
+
+def _read_path(args: argparse.Namespace, seed: Motion) -> tuple[np.ndarray, np.ndarray | None]:
+    """PATH.csv's points and times, refusing --speed where the file gives the timing."""
+    points, times = _problems().path_follow.read_path_csv(args.path)
+    if times is not None and args.speed is not None:
+        raise UserError(f"{args.path} sets the timing with its t column; drop --speed")
+    return points, times
+
+
+def _kept_ranges(args: argparse.Namespace, motion: Motion) -> list[tuple[int, int]]:
+    """--keep's ranges, checked against the input's frames."""
+    inbetween = _problems().inbetween
+    return inbetween.check_ranges(inbetween.parse_ranges(args.keep), motion.num_frames)
+
+
+CLEAN_FEET = arg("--clean-feet", action="store_true",
+                 help="plant the feet the prior finds in contact by leg IK: no sliding, at a cost of centimetres in "
+                 "fidelity (not with --method latent)")
+
+#: The task commands by name, in the order ``motionopt --help`` lists them.
+TASKS: dict[str, TaskEntry] = {
+    "path-follow": TaskEntry(
+        help="continue a motion so that its root walks along a path on the ground",
+        description="Continue SEED.bvh along the ground path in PATH.csv (a header line 'x,z', optionally 't' in "
+        "seconds after the seed's end, then one point per line; metres in the seed file's world coordinates). "
+        "OUT.bvh holds the seed's frames followed by the new motion. --plot draws the root's path against the "
+        "target path.",
+        arguments=(
+            arg("input", metavar="SEED.bvh", help="motion whose end the new motion continues"),
+            arg("--path", required=True, metavar="PATH.csv", help="ground points to follow (x,z[,t])"),
+            arg("--seconds", type=_positive(float), default=None, metavar="S",
+                help="seconds of new motion (default: enough to reach the path's end)"),
+            arg("--speed", type=_positive(float), default=None, metavar="M_PER_S",
+                help="walking speed along the path (default: the seed's recent speed, at least 1 m/s); not with a "
+                "t column")),
+        read=_read_path,
+        build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
+            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine),
+        draw=_root_paths),
+    "denoise": TaskEntry(
+        help="clean captured motion: remove jitter, foot sliding and ground penetration",
+        description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
+        "Savitzky-Golay filter of least estimated risk for it. --clean-feet then plants the feet by leg IK. "
+        "--refine then adds the MAP solve: fidelity to the input's root and joint angles, the prior and contact "
+        "terms. --plot draws a foot's trajectory before and after.",
+        arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET),
+        build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine,
+                                                                      clean_feet=a.clean_feet),
+        latent=lambda a, _, motion, prior: _problems().latent.LatentTask(motion, prior),
+        draw=_foot_trajectory, new_frames=False),
+    "inbetween": TaskEntry(
+        help="fill the frames between kept frame ranges",
+        description="Keep the frames inside --keep exactly and synthesise the frames between them so that each "
+        "gap meets the next kept frames without a jump. --plot draws a filmstrip of output and input.",
+        arguments=(
+            arg("input", metavar="INPUT.bvh", help="motion whose kept frames are used"),
+            arg("--keep", required=True, metavar="RANGES",
+                help="half-open frame ranges to keep, like Python slices, e.g. 0:30,60:90 (frames 0-29 and 60-89 of "
+                "INPUT.bvh); the first range must start at 0"),
+            CLEAN_FEET),
+        read=_kept_ranges,
+        build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
+            motion, keep, prior, refine=a.refine, clean_feet=a.clean_feet),
+        latent=lambda a, keep, motion, prior: _problems().latent.LatentTask(motion, prior, keep)),
+    "complete": TaskEntry(
+        help="continue the first frames of a motion (prefix completion)",
+        description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
+        "--frames frames in all (both in INPUT.bvh's frame rate). --plot draws a filmstrip of output and input.",
+        arguments=(
+            arg("input", metavar="INPUT.bvh", help="motion whose first frames are kept"),
+            arg("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep"),
+            arg("--frames", required=True, type=_positive(int), metavar="N",
+                help="frames of the output, prefix included"),
+            CLEAN_FEET),
+        build=lambda a, _, motion, prior: _problems().inbetween.complete(
+            motion, a.prefix, a.frames, prior, refine=a.refine, clean_feet=a.clean_feet),
+        latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(motion, a.prefix, a.frames,
+                                                                                    prior)),
+    "edit": TaskEntry(
+        help="move chosen joints to targets at chosen frames (spatial edit)",
+        description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or [I, J], "
+        "\"position\": [x, y, z] (metres, world) or \"offset\": [dx, dy, dz]}, while the rest of the motion stays "
+        "close to the input and natural. --plot draws a filmstrip of output and input. (--method latent is not "
+        "available for spatial edits yet.)",
+        arguments=(arg("input", metavar="INPUT.bvh", help="motion to edit"),
+                   arg("--targets", required=True, metavar="TARGETS.json", help="joint targets")),
+        read=lambda a, motion: _problems().edit.load_targets(a.targets),
+        build=lambda a, targets, motion, prior: _problems().edit.SpatialEdit(motion, targets, prior,
+                                                                             refine=a.refine),
+        latent_refused="spatial edits with the latent prior are not available (problems/latent.py has no spatial "
+        "edit); use --method ar, the default",
+        new_frames=False),
+}
+
+
+def register(sub) -> None:
+    for name, entry in TASKS.items():
+        p = sub.add_parser(name, help=entry.help, description=entry.description)
+        for flags, options in entry.arguments:
+            p.add_argument(*flags, **options)
+        _add_task_options(p, method=entry.offers_method, new_frames=entry.new_frames)
+        p.set_defaults(func=cmd_task)
+
+
+def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool) -> None:
+    """Options every task command shares; ``method``: it offers --method; ``new_frames``:
     it synthesises frames (where the particle swarm works)."""
-    from motionopt.solver import BACKENDS as OPTIMIZERS, PSOOptions, SolverOptions
+    from motionopt.solver import BACKENDS, PSOOptions, SolverOptions
 
     io = p.add_argument_group("input and output")
     io.add_argument("--out", required=True, metavar="OUT.bvh",
@@ -134,7 +267,7 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
                     help="refuse an input that declares more frames than this, before reading them (default "
                     "100000: 14 minutes at 120 fps)")
     s = p.add_argument_group("prior and solver")
-    if latent:
+    if method:
         s.add_argument("--method", choices=METHODS, default="ar",
                        help="ar: MAP optimisation under the autoregressive prior (default); latent: inversion "
                        "of the latent (W+) prior")
@@ -148,9 +281,9 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
-                       "encoder alone)" if latent else ""))
+                       "encoder alone)" if method else ""))
     s.add_argument("--optimizer", default=None, metavar="NAME",
-                   help=f"local optimiser: {', '.join(OPTIMIZERS)} (default {SolverOptions.method}); scipy is "
+                   help=f"local optimiser: {', '.join(BACKENDS)} (default {SolverOptions.method}); scipy is "
                    "L-BFGS-B, nlopt LD_LBFGS, torch torch.optim.LBFGS, adam a first-order baseline")
     swarm = ("it steers the synthesised frames of --refine; off by default, --pso-particles turns it on"
              if new_frames else "it steers synthesised frames only, so with --method ar it changes nothing here")
@@ -160,11 +293,11 @@ def _add_task_options(p: argparse.ArgumentParser, latent: bool, new_frames: bool
     s.add_argument("--pso-iterations", type=_positive(int), default=None, metavar="N",
                    help=f"particle swarm iterations (default {PSOOptions.iterations})" + (
                        "; with --method latent, swarm iterations over the latent code (default 0)"
-                       if latent else ""))
+                       if method else ""))
     add_common(p)
 
 
-# ---- shared steps ---------------------------------------------------------------------------------
+# ---- the steps every task command takes (and the batch with it) -----------------------------------
 
 @dataclass
 class Outputs:
@@ -173,6 +306,52 @@ class Outputs:
     bvh: Path
     report: Path | None
     picture: Path | None
+
+
+@dataclass
+class TaskRun:
+    """A task command ready to solve: its arguments and entry, where it writes, the input,
+    the prior's path, the task object, and when the command started."""
+
+    args: argparse.Namespace
+    entry: TaskEntry
+    outs: Outputs
+    motion: Motion
+    prior_path: Path
+    task: Task
+    started: float
+
+
+def start(args: argparse.Namespace, progress: Callable[[dict], object] | None = None) -> TaskRun:
+    """The task of parsed command-line ``args``, every input and output checked first: the
+    outputs, the options that do not go together, the input, the command's own inputs
+    (``TaskEntry.read``), the prior (autoregressive, or latent with --method latent); then
+    the task object, its solver settings the task's own with the command line's knobs
+    applied (``progress``: the solver's callback)."""
+    started = time.perf_counter()
+    entry = TASKS[args.command]
+    outs = check_outputs(args)
+    latent = _method(args) == "latent"
+    if latent and entry.latent_refused:
+        raise UserError(entry.latent_refused)
+    if latent and getattr(args, "clean_feet", False):
+        raise UserError("--clean-feet works with --method ar only")
+    motion = load_input(args)
+    inputs = entry.read(args, motion)
+    if latent:
+        prior, prior_path = load_latent_prior(motion, args)
+        task = entry.latent(args, inputs, motion, prior)
+        task.options = latent_options(args, task.options)
+    else:
+        prior, prior_path = load_ar_prior(motion, args)
+        task = entry.build(args, inputs, motion, prior)
+        task.options = solver_options(args, task.options, progress)
+    return TaskRun(args, entry, outs, motion, prior_path, task, started)
+
+
+def _method(args: argparse.Namespace) -> str:
+    """--method, for a command that offers it; else ar."""
+    return getattr(args, "method", "ar")
 
 
 def check_outputs(args: argparse.Namespace) -> Outputs:
@@ -227,15 +406,15 @@ def load_latent_prior(motion, args: argparse.Namespace):
     return prior, path
 
 
-def solver_options(args: argparse.Namespace, task: type, progress: "WindowProgress"):
-    """The task's default solver options with the command line's knobs applied."""
-    from motionopt.solver import BACKENDS as OPTIMIZERS, PSOOptions
+def solver_options(args: argparse.Namespace, base: SolverOptions,
+                   progress: Callable[[dict], object] | None = None) -> SolverOptions:
+    """The task's solver settings ``base`` with the command line's knobs applied."""
+    from motionopt.solver import BACKENDS, PSOOptions
 
-    if args.optimizer is not None and args.optimizer not in OPTIMIZERS:
-        raise UserError(f"--optimizer {args.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+    if args.optimizer is not None and args.optimizer not in BACKENDS:
+        raise UserError(f"--optimizer {args.optimizer!r}: choose one of {', '.join(BACKENDS)}")
     if args.no_pso and (args.pso_particles or args.pso_iterations):
         raise UserError("--no-pso turns the particle swarm off; drop --pso-particles/--pso-iterations or --no-pso")
-    base = next(f for f in fields(task) if f.name == "options").default_factory()
     pso = base.pso
     if args.no_pso:
         pso = None
@@ -246,17 +425,15 @@ def solver_options(args: argparse.Namespace, task: type, progress: "WindowProgre
                    pso=pso, seed=args.seed, callback=progress)
 
 
-def latent_options(args: argparse.Namespace):
-    """Inversion settings from the command line (--method latent)."""
-    from motionopt.solver import InversionOptions
-
+def latent_options(args: argparse.Namespace, base: InversionOptions) -> InversionOptions:
+    """The latent task's inversion settings ``base`` with the command line's knobs applied (--method latent)."""
     for flag, value in (("--optimizer", args.optimizer), ("--pso-particles", args.pso_particles)):
         if value is not None:
             raise UserError(f"{flag} applies to --method ar only")
     if args.no_pso and args.pso_iterations:
         raise UserError("--no-pso turns the particle swarm off; drop --pso-iterations or --no-pso")
-    return InversionOptions(refine_iters=args.iterations or 0,
-                            pso_iters=0 if args.no_pso else args.pso_iterations or 0, seed=args.seed)
+    return replace(base, refine_iters=args.iterations or base.refine_iters,
+                   pso_iters=0 if args.no_pso else args.pso_iterations or base.pso_iters, seed=args.seed)
 
 
 class WindowProgress:
@@ -310,12 +487,14 @@ def command_line(args: argparse.Namespace, prior_path: Path) -> str:
     return " ".join(shlex.quote(w) for w in words)
 
 
-def solve(args: argparse.Namespace, run: Callable[[], object], progress: WindowProgress | None = None):
-    """Run the task's solve with the progress bar; log the solver's warnings."""
-    if progress is None:
+def solve(run: TaskRun, progress: WindowProgress | None = None):
+    """Solve the task (closing the progress bar after); log the solver's warnings, and with
+    --verbose its windows and terms."""
+    args = run.args
+    if _method(args) == "latent":
         _say(args, f"{args.command}: inverting the latent prior")
     try:
-        result = run()
+        result = run.task.solve()
     finally:
         if progress is not None:
             progress.close()
@@ -332,30 +511,25 @@ def solve(args: argparse.Namespace, run: Callable[[], object], progress: WindowP
     return result
 
 
-def finish(args: argparse.Namespace, outs: Outputs, motion, result, prior_path: Path, started: float,
-           draw: Callable[[Path], object]) -> int:
-    """Write the BVH, the report and the picture; print the summary."""
+def write_result(run: TaskRun, result) -> dict:
+    """Write the solved task's BVH, then its picture and report where asked for; return the
+    report (also when it is not written). The one writer of a result, for the commands and
+    the batch."""
     from motionopt import bvh
 
+    args, outs = run.args, run.outs
     bvh.save(result.motion, outs.bvh, force=args.force)
-    seconds = time.perf_counter() - started
+    seconds = time.perf_counter() - run.started
     if outs.picture is not None:
-        draw(outs.picture)
+        run.entry.draw(run.task, run.motion, result, outs.picture)
+    report = {"command": command_line(args, run.prior_path), "task": args.command, "method": _method(args),
+              "input": str(args.input), "output": str(outs.bvh),
+              "picture": str(outs.picture) if outs.picture else None, "prior": str(run.prior_path),
+              "input_frames": run.motion.num_frames, "input_fps": run.motion.fps, "seconds": seconds,
+              **result.report()}
     if outs.report is not None:
-        report = {"command": command_line(args, prior_path), "task": args.command,
-                  "method": getattr(args, "method", "ar"),
-                  "input": str(args.input), "output": str(outs.bvh),
-                  "picture": str(outs.picture) if outs.picture else None, "prior": str(prior_path),
-                  "input_frames": motion.num_frames, "input_fps": motion.fps, "seconds": seconds, **result.report()}
         _write_json(outs.report, report)
-    if not args.quiet:
-        print(f"wrote {outs.bvh}: {result.motion.num_frames} frames at {result.motion.fps:g} fps "
-              f"(input {motion.num_frames}) in {seconds:.1f} s")
-        for line in summary_lines(result):
-            print(f"  {line}")
-        for path in filter(None, (outs.picture, outs.report)):
-            print(f"wrote {path}")
-    return 0
+    return report
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -364,177 +538,24 @@ def _write_json(path: Path, data: dict) -> None:
     write_text_atomic(path, text + "\n")
 
 
-#: How to say a task's metrics: (keys that must all be present, sentence from their values).
-SUMMARY: list[tuple[tuple[str, ...], Callable[..., str]]] = [
-    (("path_distance_cm_mean", "path_distance_cm_max"),
-     lambda m, x: f"root distance to the path: {m:.1f} cm on average, {x:.1f} cm at most"),
-    (("end_distance_to_path_end_m",), lambda d: f"the motion ends {d:.2f} m from the path's end"),
-    (("new_frames", "speed_m_per_s"), lambda n, v: f"{n} new frames at the prior's rate, at {v:.2f} m/s"),
-    (("foot_skating_cm_per_s",), lambda s: f"foot skating: {s:.1f} cm/s (mocap: a few cm/s)"),
-    (("jerk_input_m_per_s3", "jerk_output_m_per_s3"),
-     lambda a, b: f"jitter (mean jerk): {a:.0f} -> {b:.0f} m/s^3, input -> output"),
-    (("foot_skating_input_cm_per_s", "foot_skating_output_cm_per_s"),
-     lambda a, b: f"foot skating: {a:.1f} -> {b:.1f} cm/s, input -> output"),
-    (("mean_change_cm",), lambda c: f"joints moved {c:.2f} cm on average"),
-    (("synthesised_frames",), lambda n: f"{n} frames synthesised"),
-    (("join_root_error_cm",), lambda e: "gaps meet the kept frames within "
-     + (", ".join(f"{v:.1f}" for v in e) + " cm (root)" if e else "- (no gap before a kept frame)")),
-    (("target_error_cm_mean", "target_error_cm_max"),
-     lambda m, x: f"targets met within {x:.2f} cm ({m:.2f} cm on average)"),
-    (("untouched_change_cm_mean",), lambda c: f"frames away from the targets moved {c:.2f} cm on average"),
-    (("prior_nll_per_frame",), lambda v: f"naturalness: {v:.1f} nats per frame under the prior (lower is "
-     "more natural)"),
-    (("frames_per_second",), lambda f: f"speed: {f:.0f} frames per second"),
-]
-
-
-def summary_lines(result) -> list[str]:
-    """Short sentences about the result's metrics (unknown metrics as name: value)."""
-    metrics = dict(result.metrics)
-    lines = []
-    for keys, say in SUMMARY:
-        if all(k in metrics for k in keys):
-            lines.append(say(*(metrics.pop(k) for k in keys)))
-    lines += [f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}" for k, v in metrics.items()]
+def cmd_task(args: argparse.Namespace) -> int:
+    """A task command: check and build (``start``), solve, write, and say what came out:
+    the task's summary of its metrics and, after --refine, the solver's objective."""
+    progress = WindowProgress(args)
+    run = start(args, progress)
+    result = solve(run, progress)
+    report = write_result(run, result)
+    if args.quiet:
+        return 0
+    lines = run.task.summary(result)
     solver = getattr(result, "solver", None)
-    inversion = getattr(result, "inversion", None)
     if solver is not None:
         lines.append(f"objective {solver.fun_start:.4g} -> {solver.fun:.4g} over {len(solver.windows)} windows, "
                      f"{solver.nit} iterations")
-    elif inversion is not None:
-        how = f"refined in {inversion.nit} iterations" if inversion.nit else "from the encoder alone"
-        fit = "" if inversion.objective is None else \
-            f"; fidelity objective {inversion.objective_start:.4g} -> {inversion.objective:.4g}"
-        lines.append(f"latent codes of {len(inversion.starts)} windows {how}{fit}")
-    return lines
-
-
-def filmstrip(motion, result) -> Callable[[Path], object]:
-    """A filmstrip of output over input, six moments spread over the output."""
-    import numpy as np
-
-    from motionopt import plot
-
-    n = result.motion.num_frames
-    frames = np.unique(np.linspace(0, n - 1, min(6, n)).round().astype(int)).tolist()
-    return lambda out: plot.plot_filmstrip({"output": result.motion, "input": motion}, out, frames=frames,
-                                           title="Output (top) and input", force=True)
-
-
-# ---- the commands ----------------------------------------------------------------------------------
-
-def cmd_path_follow(args: argparse.Namespace) -> int:
-    from motionopt import plot
-    from problems.path_follow import PathFollow, read_path_csv
-
-    started = time.perf_counter()
-    outs = check_outputs(args)
-    points, times = read_path_csv(args.path)
-    if times is not None and args.speed is not None:
-        raise UserError(f"{args.path} sets the timing with its t column; drop --speed")
-    seed = load_input(args)
-    prior, prior_path = load_ar_prior(seed, args)
-    progress = WindowProgress(args)
-    task = PathFollow(seed, points, prior, times=times, speed=args.speed, seconds=args.seconds,
-                      options=solver_options(args, PathFollow, progress), refine=args.refine)
-    result = solve(args, task.solve, progress)
-    return finish(args, outs, seed, result, prior_path, started, lambda out: plot.plot_root_paths(
-        {"output": result.motion, "seed": seed}, out, target=points, title="Root path and target path",
-        force=True))
-
-
-def cmd_denoise(args: argparse.Namespace) -> int:
-    from motionopt import plot
-
-    started = time.perf_counter()
-    outs = check_outputs(args)
-    _no_clean_feet_with_latent(args)
-    motion = load_input(args)
-    if args.method == "latent":
-        from problems.latent import reconstruct
-
-        prior, prior_path = load_latent_prior(motion, args)
-        options = latent_options(args)
-        result = solve(args, lambda: reconstruct(prior, motion, options))
-    else:
-        from problems.denoise import Denoise
-
-        prior, prior_path = load_ar_prior(motion, args)
-        progress = WindowProgress(args)
-        task = Denoise(motion, prior, options=solver_options(args, Denoise, progress), refine=args.refine,
-                       clean_feet=args.clean_feet)
-        result = solve(args, task.solve, progress)
-    foot = prior.spec.contact_joints[0]
-    return finish(args, outs, motion, result, prior_path, started, lambda out: plot.plot_joint_trajectories(
-        {"input": motion, "denoised": result.motion}, foot, out, force=True))
-
-
-def cmd_inbetween(args: argparse.Namespace) -> int:
-    from problems.inbetween import check_ranges, parse_ranges
-
-    started = time.perf_counter()
-    outs = check_outputs(args)
-    _no_clean_feet_with_latent(args)
-    motion = load_input(args)
-    keep = check_ranges(parse_ranges(args.keep), motion.num_frames)
-    if args.method == "latent":
-        import numpy as np
-
-        from problems.latent import infill
-
-        prior, prior_path = load_latent_prior(motion, args)
-        options = latent_options(args)
-        seen = np.zeros(motion.num_frames, bool)
-        for a, b in keep:
-            seen[a:b] = True
-        result = solve(args, lambda: infill(prior, motion, seen, options))
-    else:
-        from problems.inbetween import Inbetween
-
-        prior, prior_path = load_ar_prior(motion, args)
-        progress = WindowProgress(args)
-        task = Inbetween(motion, keep, prior, options=solver_options(args, Inbetween, progress), refine=args.refine,
-                         clean_feet=args.clean_feet)
-        result = solve(args, task.solve, progress)
-    return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
-
-
-def cmd_complete(args: argparse.Namespace) -> int:
-    started = time.perf_counter()
-    outs = check_outputs(args)
-    _no_clean_feet_with_latent(args)
-    motion = load_input(args)
-    if args.method == "latent":
-        from problems.latent import complete
-
-        prior, prior_path = load_latent_prior(motion, args)
-        options = latent_options(args)
-        result = solve(args, lambda: complete(prior, motion, args.prefix, args.frames, options))
-    else:
-        from problems.inbetween import Inbetween, complete
-
-        prior, prior_path = load_ar_prior(motion, args)
-        progress = WindowProgress(args)
-        task = complete(motion, args.prefix, args.frames, prior,
-                        options=solver_options(args, Inbetween, progress), refine=args.refine,
-                        clean_feet=args.clean_feet)
-        result = solve(args, task.solve, progress)
-    return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
-
-
-def cmd_edit(args: argparse.Namespace) -> int:
-    from problems.edit import SpatialEdit, load_targets
-
-    started = time.perf_counter()
-    outs = check_outputs(args)
-    if args.method == "latent":
-        raise UserError("spatial edits with the latent prior are not available (problems/latent.py has no "
-                        "spatial edit); use --method ar, the default")
-    targets = load_targets(args.targets)
-    motion = load_input(args)
-    prior, prior_path = load_ar_prior(motion, args)
-    progress = WindowProgress(args)
-    task = SpatialEdit(motion, targets, prior, options=solver_options(args, SpatialEdit, progress),
-                       refine=args.refine)
-    result = solve(args, task.solve, progress)
-    return finish(args, outs, motion, result, prior_path, started, filmstrip(motion, result))
+    print(f"wrote {run.outs.bvh}: {result.motion.num_frames} frames at {result.motion.fps:g} fps "
+          f"(input {run.motion.num_frames}) in {report['seconds']:.1f} s")
+    for line in lines:
+        print(f"  {line}")
+    for path in filter(None, (run.outs.picture, run.outs.report)):
+        print(f"wrote {path}")
+    return 0
