@@ -1,4 +1,4 @@
-"""The MAP objective: a prior term, an optional noise prior, and task terms.
+"""The MAP objective: a prior term and task terms.
 
 Every term is an object with a name, a sigma in user units (metres, radians, m/s) and a
 torch function of a decoded window (``WindowState``). Terms address frames by their
@@ -43,7 +43,6 @@ class WindowState:
     frames: np.ndarray
     lead: int
     x: Tensor                 # (..., T, D) normalised features of the window frames
-    noise: Tensor | None      # (..., T, D) input noise d, or None
     rotations: Tensor         # (..., lead+T, J, 3, 3) local rotation matrices
     root: Tensor              # (..., lead+T, 3)
     positions: Tensor         # (..., lead+T, J, 3) world joint positions
@@ -112,19 +111,6 @@ class PriorTerm(Term):
 
     def energy(self, state: WindowState) -> Tensor:
         return self.weight * state.prior_nll.sum(-1)
-
-
-@dataclass
-class NoisePrior(Term):
-    """Gaussian prior on the prior's input noise d (sigma in normalised feature units)."""
-
-    sigma: float = 0.05
-    name: str = "noise"
-
-    def energy(self, state: WindowState) -> Tensor:
-        if state.noise is None:
-            return state.x.new_zeros(state.x.shape[:-2])
-        return _gaussian(state.noise.pow(2), self.sigma).sum((-1, -2))
 
 
 @dataclass
@@ -312,7 +298,7 @@ class SmoothnessTerm(Term):
 
 @dataclass
 class MAPObjective:
-    """Prior + noise prior + task terms over normalised features of a model skeleton.
+    """Prior + task terms over normalised features of a model skeleton.
 
     ``prior_min_log_std`` floors the prior's predictive log-std (normalised units): the
     trained prior is very confident about the next frame, which makes the energy too
@@ -329,14 +315,12 @@ class MAPObjective:
     skeleton: Skeleton
     terms: list[Term] = field(default_factory=list)
     prior_weight: float = 1.0
-    noise_sigma: float | None = None
     prior_min_log_std: float | None = -2.5
     prior_min_std_raw: float | None = 0.01
 
     def __post_init__(self) -> None:
         self.spec: FeatureSpec = self.prior.spec
         self.prior_term = PriorTerm(self.prior_weight)
-        self.noise_term = NoisePrior(self.noise_sigma) if self.noise_sigma else None
         self._offsets = torch.as_tensor(self.skeleton.offsets, dtype=torch.float32)
         self._floor = self._log_std_floor()
 
@@ -350,10 +334,10 @@ class MAPObjective:
         return floor.float()
 
     def all_terms(self) -> list[Term]:
-        return [self.prior_term] + ([self.noise_term] if self.noise_term else []) + list(self.terms)
+        return [self.prior_term] + list(self.terms)
 
     def window_state(self, x: Tensor, frames: np.ndarray, context: Tensor, lead_raw: Tensor,
-                     start: RootStart, noise: Tensor | None = None, contacts: Tensor | None = None) -> WindowState:
+                     start: RootStart, contacts: Tensor | None = None) -> WindowState:
         """Decode a (batch of) window(s) ``x (..., T, D)`` after ``context (C, D)``.
 
         ``lead_raw`` holds the last solved frames (unnormalised, (L, D)) before the
@@ -363,7 +347,7 @@ class MAPObjective:
         """
         norm = self.prior.normalizer
         floor = self._floor.to(x.dtype) if isinstance(self._floor, Tensor) else self._floor
-        nll, predicted = self.prior.nll_and_contacts(x, context, noise, floor)
+        nll, predicted = self.prior.nll_and_contacts(x, context, floor)
         if context.shape[-2] == 0:
             # the sequence's first frame has no history: the prior has nothing to say about it
             nll = torch.cat((torch.zeros_like(nll[..., :1]), nll[..., 1:]), dim=-1)
@@ -373,7 +357,7 @@ class MAPObjective:
         pos = fk_matrices(self.skeleton.parents, rot, root, self._offsets.to(x.dtype))
         if contacts is None:
             contacts = predicted.detach()
-        return WindowState(frames, lead_raw.shape[0], x, noise, rot, root, pos, contacts, nll, self.spec.fps)
+        return WindowState(frames, lead_raw.shape[0], x, rot, root, pos, contacts, nll, self.spec.fps)
 
     def energies(self, state: WindowState) -> dict[str, Tensor]:
         """Every active term's energy (...,) for the window."""

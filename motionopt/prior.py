@@ -34,22 +34,26 @@ class MotionPrior(Protocol):
         """The temperature at which long rollouts keep the data's pace (calibrated after
         training, ``priors.temperature``): what the tasks sample at unless told otherwise."""
 
-    def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
+    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         """Per-frame negative log-likelihood -log p(x_t | x_<t) of frames ``x (..., T, D)``.
 
         ``context (..., C, D)`` holds frames before ``x``; returns ``(..., T)``, one
         teacher-forced pass, differentiable in ``x`` and ``context``. Contact dimensions
-        of ``x`` are history only; they are not scored. ``noise (..., T, D)``, when given,
-        is added to the frames of ``x`` where they serve as history (the input noise d of
-        the MAP formulation), not where they are scored.
+        of ``x`` are history only; they are not scored.
         """
 
-    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None,
-                         min_log_std: float | None = None) -> tuple[Tensor, Tensor]:
+    def gaussian(self, x: Tensor, context: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """The one-step predictions for frames of ``x``: mean and log-std (..., T, P) of the
+        pose dimensions, contact logits (..., T, C)."""
+
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, min_log_std: float | Tensor | None = None,
+                         log_std: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """``nll`` and ``predict_contacts`` from one pass (what the solver calls).
 
         ``min_log_std`` floors the predictive log-std (normalised units): a tempered,
-        less stiff prior that optimisers can trade against task terms."""
+        less stiff prior that optimisers can trade against task terms. ``log_std
+        (..., T, P)``, when given, replaces the predicted log-std: a local solve holds it
+        fixed, so that it cannot lower the energy by making frames less certain."""
 
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         """Probability (..., T, C) that each contact joint touches the ground at each frame."""
@@ -76,6 +80,10 @@ class LatentMotionPrior(Protocol):
     normalizer: Normalizer
     skeleton: Skeleton
     metadata: dict
+    #: Principal directions of W (rows, largest first) and their standard deviations:
+    #: the subspace the inversion's particle swarm searches.
+    w_components: Tensor
+    w_scales: Tensor
 
     @property
     def window(self) -> int:

@@ -138,13 +138,10 @@ class CCNetPrior(nn.Module):
                                 self.log_std_floor)
         return mean, log_std, out[..., 2 * p:]
 
-    def _history(self, x: Tensor, context: Tensor | None, noise: Tensor | None = None) -> tuple[Tensor, int]:
-        """Frames that predict ``x``: context (or a zero frame) followed by x (plus the input
-        noise ``noise`` where given) without its last frame."""
+    def _history(self, x: Tensor, context: Tensor | None) -> tuple[Tensor, int]:
+        """Frames that predict ``x``: context (or a zero frame) followed by x without its last frame."""
         if context is None or context.shape[-2] == 0:
             context = torch.zeros_like(x[..., :1, :])
-        if noise is not None:
-            x = x + noise
         full = torch.cat((context.to(x), x), dim=-2)
         return full[..., :-1, :], context.shape[-2] - 1
 
@@ -152,12 +149,11 @@ class CCNetPrior(nn.Module):
         lead = x.shape[:-2]
         return x.reshape(-1, *x.shape[-2:]), lead
 
-    def gaussian(self, x: Tensor, context: Tensor | None = None,
-                 noise: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def gaussian(self, x: Tensor, context: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Predicted mean, log-std (..., T, P) and contact logits (..., T, C) for frames of ``x``."""
         if context is not None and context.dim() < x.dim():
             context = context.expand(*x.shape[:-2], *context.shape[-2:])
-        hist, skip = self._history(x, context, noise)
+        hist, skip = self._history(x, context)
         flat, lead = self._flat(hist)
         mean, log_std, logits = self._predict(flat)
         T = x.shape[-2]
@@ -165,9 +161,11 @@ class CCNetPrior(nn.Module):
         return tuple(t.reshape(*lead, T, t.shape[-1]) for t in out)  # type: ignore[return-value]
 
     # ---- protocol ----------------------------------------------------------------------
-    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None,
-                         min_log_std: float | None = None) -> tuple[Tensor, Tensor]:
-        mean, log_std, logits = self.gaussian(x, context, noise)
+    def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, min_log_std: float | Tensor | None = None,
+                         log_std: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        mean, predicted, logits = self.gaussian(x, context)
+        if log_std is None:
+            log_std = predicted
         if min_log_std is not None:
             log_std = log_std.clamp_min(min_log_std)
         return self._gaussian_nll(x, mean, log_std), torch.sigmoid(logits)
@@ -177,8 +175,8 @@ class CCNetPrior(nn.Module):
         z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std) * self.moving  # zero before squaring
         return (0.5 * z * z + (log_std + _HALF_LOG_2PI) * self.moving).sum(-1)
 
-    def nll(self, x: Tensor, context: Tensor | None = None, noise: Tensor | None = None) -> Tensor:
-        return self.nll_and_contacts(x, context, noise)[0]
+    def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        return self.nll_and_contacts(x, context)[0]
 
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         return self.nll_and_contacts(x, context)[1]

@@ -135,11 +135,10 @@ class TaskResult:
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,
-        noise_sigma: float | None = None, prior_min_log_std: float | None = -2.5) -> tuple[MAPResult, Motion]:
+        prior_min_log_std: float | None = -2.5) -> tuple[MAPResult, Motion]:
     """Solve and decode to a model-skeleton Motion (continuing the input's root).
     ``prior_min_log_std``: see ``MAPObjective`` (None: the prior as trained)."""
-    objective = MAPObjective(prior, prep.model.skeleton, terms, noise_sigma=noise_sigma,
-                             prior_min_log_std=prior_min_log_std)
+    objective = MAPObjective(prior, prep.model.skeleton, terms, prior_min_log_std=prior_min_log_std)
     result = solve(objective, Problem(x0, free, prep.start), options)
     # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
     return result, prep.codec.motion(result.x.double(), prep.start, like=prep.original)

@@ -40,7 +40,7 @@ def state_of(aa: torch.Tensor, root: torch.Tensor, contacts: torch.Tensor | None
     pos = fk_matrices(sk.parents, rot, root, torch.as_tensor(sk.offsets, dtype=aa.dtype))
     if contacts is None:
         contacts = torch.ones(T, 2, dtype=aa.dtype)
-    return WindowState(np.arange(FIRST, FIRST + T), LEAD, torch.zeros(T, 4, dtype=aa.dtype), None, rot, root, pos,
+    return WindowState(np.arange(FIRST, FIRST + T), LEAD, torch.zeros(T, 4, dtype=aa.dtype), rot, root, pos,
                        contacts, torch.zeros(T, dtype=aa.dtype), 30.0)
 
 

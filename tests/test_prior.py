@@ -81,12 +81,12 @@ def test_context_continues_the_sequence(prior, x):
     assert changed(prior.nll(x[c:], context=x[:c]), prior.nll(x[c:], context=edited))[0]
 
 
-def test_noise_perturbs_history_only(prior, x):
-    assert torch.equal(prior.nll(x, noise=torch.zeros_like(x)), prior.nll(x))
-    d = torch.zeros_like(x)
-    d[10] = 0.3
-    ch = changed(prior.nll(x), prior.nll(x, noise=d))
-    assert not ch[:11].any() and ch[11]
+def test_a_given_log_std_replaces_the_predicted_one(prior, x):
+    mean, log_std, _ = prior.gaussian(x[1:], x[:1])
+    nll, _ = prior.nll_and_contacts(x[1:], x[:1], log_std=log_std)
+    assert torch.allclose(nll, prior.nll(x[1:], x[:1]))
+    wider, _ = prior.nll_and_contacts(x[1:], x[:1], log_std=log_std + 1.0)
+    assert not torch.allclose(wider, nll)
 
 
 def test_contacts_come_from_the_same_pass(prior, x):

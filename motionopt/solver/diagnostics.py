@@ -70,7 +70,7 @@ def energies_at(objective: MAPObjective, problem: Problem, x: Tensor,
     out: dict[str, float] = {}
     for s in walk.starts:
         win = walk.open(x, s)
-        if win.size == 0:
+        if win.n_vars == 0:
             continue
         win.rebase()
         for k, val in win.values(win.pack()).items():

@@ -67,7 +67,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
         e = min(s + opts.window, n)
         win = walk.open(x, s)
         context, free_local = win.context, win.free_np
-        if win.size == 0:
+        if win.n_vars == 0:
             continue
         # new frames: a rollout of the prior, steered by the particle swarm when enabled
         unknown = np.nonzero(~known[s:e])[0]
@@ -136,7 +136,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
             messages.append(f"window {w_i}: {msg}")
         # write the window back, with contacts predicted by the prior
         with torch.no_grad():
-            xw, _ = win.unpack(torch.from_numpy(v).float())
+            xw = win.unpack(torch.from_numpy(v).float())
             _, probs = prior.nll_and_contacts(xw, context)
         xw[:, p:] = torch.where(torch.from_numpy(free_local)[:, None], (probs > 0.5).float(), xw[:, p:])
         x[s:e] = xw

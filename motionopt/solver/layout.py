@@ -63,5 +63,4 @@ class WindowWalk:
             self._committed = lead_from
         lead_raw = norm.denormalize(x[self._committed:s].double()).float()
         context = x[max(0, s - obj.prior.receptive_field):s]
-        return Window(obj, x[s:e], np.arange(s, e), self.free[s:e], context, lead_raw, self._root_state,
-                      with_noise=obj.noise_term is not None)
+        return Window(obj, x[s:e], np.arange(s, e), self.free[s:e], context, lead_raw, self._root_state)

@@ -68,7 +68,7 @@ class Window:
     Variables per free frame: offsets to the four root features (normalised units) and a
     rotation vector per joint applied on the right of the frame's starting rotation, so
     every iterate holds valid rotations (never a 6D vector off the rotation manifold the
-    prior was trained on); plus the prior's input noise when the objective has one.
+    prior was trained on).
     Rotation vectors are whitened (see ``_tangent_whitening``) so that all variables share
     the normalised units the prior scores. The offsets are the sum of a per-frame part
     and a few scaled cosine components over the window (see ``_coarse_basis``): a step on
@@ -81,7 +81,7 @@ class Window:
     """
 
     def __init__(self, objective: MAPObjective, x: Tensor, frames: np.ndarray, free_local: np.ndarray,
-                 context: Tensor, lead_raw: Tensor, start: RootStart, with_noise: bool):
+                 context: Tensor, lead_raw: Tensor, start: RootStart):
         self.obj = objective
         self.x = x.clone()
         self.frames = frames
@@ -94,13 +94,11 @@ class Window:
         self.p = objective.spec.pose_dim
         self.n_rot = len(objective.spec.joints)
         self.k = 4 + 3 * self.n_rot
-        self.with_noise = with_noise
         self.n_free = int(free_local.sum())
         self.n_basis = min(BASIS_SIZE, self.n_free)
         self.basis = _coarse_basis(self.n_free, self.n_basis) if self.n_free else torch.zeros(0, 0)
         self.basis_root = _coarse_basis(self.n_free, self.n_basis, 0.5) if self.n_free else torch.zeros(0, 0)
         self.n_vars = (self.n_basis + self.n_free) * self.k
-        self.size = self.n_vars + (self.n_free * self.p if with_noise else 0)
         norm = objective.prior.normalizer
         self._mean6 = norm.mean[4:self.p].float()
         self._std6 = norm.std[4:self.p].float()
@@ -133,10 +131,10 @@ class Window:
 
     def pack(self) -> np.ndarray:
         """The variables of the current base: all zeros."""
-        return np.zeros(self.size)
+        return np.zeros(self.n_vars)
 
-    def unpack(self, v: Tensor) -> tuple[Tensor, Tensor | None]:
-        """Window features (..., T, D) and input noise (or None) of variables ``v (..., size)``."""
+    def unpack(self, v: Tensor) -> Tensor:
+        """Window features (..., T, D) of variables ``v (..., size)``."""
         if self._base_rot is None:
             self.rebase()
         lead = v.shape[:-1]
@@ -153,17 +151,13 @@ class Window:
         else:
             x = self.x.expand(*lead, *self.x.shape).clone()
             x[..., self.free, :] = rows
-        noise = None
-        if self.with_noise:
-            noise = torch.zeros_like(x)
-            noise[..., self.free, :self.p] = v[..., nk:].reshape(*lead, self.n_free, self.p)
-        return x, noise
+        return x
 
     def state(self, v: Tensor):
         """The objective's decoded window state at variables ``v``."""
-        x, noise = self.unpack(v)
+        x = self.unpack(v)
         t0 = time.perf_counter()
-        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, noise, self.contacts)
+        st = self.obj.window_state(x, self.frames, self.context, self.lead_raw, self.start, self.contacts)
         self.prior_seconds += time.perf_counter() - t0
         return st
 
