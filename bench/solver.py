@@ -183,7 +183,7 @@ def ablation(seconds: float) -> list[str]:
                 runs["L-BFGS, same time"] = solve(case.objective, case.problem, SolverOptions(
                     pso=None, max_iter=100_000, time_budget=budget))
             runs["Adam, same time"] = solve(case.objective, case.problem, SolverOptions(
-                pso=None, method="adam", max_iter=100_000, time_budget=budget))
+                pso=None, optimizer="adam", max_iter=100_000, time_budget=budget))
             if case.input_error_cm is not None:
                 rows.append([case.clip, "noisy input", "", "", "", "", f"{case.input_error_cm:.2f}",
                              f"{case.input_skating_cm_s:.1f}"])

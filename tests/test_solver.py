@@ -95,8 +95,8 @@ def test_free_window_starts_extend_windows_past_gaps():
 
 
 def test_options_are_checked():
-    with pytest.raises(ValueError, match="unknown method"):
-        SolverOptions(method="bfgs")
+    with pytest.raises(ValueError, match="unknown optimizer"):
+        SolverOptions(optimizer="bfgs")
     with pytest.raises(ValueError, match="overlap"):
         SolverOptions(window=10, overlap=10)
 
@@ -126,11 +126,11 @@ def test_inbetween_keeps_fixed_frames_and_fills_the_gap():
     assert res.timings["pso"] > 0 and res.nfev > opts.pso.particles * opts.pso.iterations
 
 
-@pytest.mark.parametrize("method", list(S.BACKENDS))
-def test_every_local_optimiser_lowers_the_objective(method):
+@pytest.mark.parametrize("optimizer", list(S.OPTIMIZERS))
+def test_every_local_optimiser_lowers_the_objective(optimizer):
     prior = tiny_prior()
     objective, problem, _ = denoise(prior, cmu_clips()[0], n=30)
-    res = solve(objective, problem, SolverOptions(method=method, max_iter=10, pso=None))
+    res = solve(objective, problem, SolverOptions(optimizer=optimizer, max_iter=10, pso=None))
     assert res.success, res.message
     assert res.fun < res.fun_start - 1.0
     assert res.nfev >= res.windows[0]["nfev"] > 0 and res.timings["lbfgs"] > 0
@@ -301,7 +301,7 @@ def test_diverging_optimiser_falls_back_to_its_best_iterate():
     prior = tiny_prior()
     objective, problem, _ = denoise(prior, cmu_clips()[0], n=30)
     bests: list[float] = []
-    res = solve(objective, problem, SolverOptions(method="adam", adam_lr=0.3, max_iter=4, pso=None,
+    res = solve(objective, problem, SolverOptions(optimizer="adam", adam_lr=0.3, max_iter=4, pso=None,
                                                   callback=lambda info: bests.append(info["best"])))
     assert res.success and res.windows[0]["nit"] == 20
     assert res.windows[0]["fun"] == pytest.approx(min(bests), rel=1e-6)

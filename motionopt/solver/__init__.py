@@ -8,12 +8,12 @@ Rooms:
 - ``driver``: ``solve``, the windowed MAP driver;
 - ``layout``: where windows go (``free_window_starts``) and what each is conditioned on;
 - ``window``: one window's variables and objective (``Window``);
-- ``backends``: the local optimisers, ``BACKENDS`` (``SolverOptions.method`` -> function);
+- ``optimizers``: the local optimisers, ``OPTIMIZERS`` (``SolverOptions.optimizer`` -> function);
 - ``swarm``: the particle swarm both solvers use;
 - ``diagnostics``: ``seam_report`` and ``energies_at`` (term energies without optimising);
 - ``inversion``: ``invert`` for latent priors (encoder, swarm, L-BFGS refinement).
 """
-from .backends import BACKENDS
+from .optimizers import OPTIMIZERS
 from .diagnostics import energies_at, seam_report
 from .driver import solve
 from .inversion import InversionResult, blend, clip_window_starts, invert, refine, regulariser
@@ -21,6 +21,6 @@ from .layout import free_window_starts
 from .options import InversionOptions, PSOOptions, SolverOptions
 from .result import MAPResult, Problem, StopSolve
 
-__all__ = ["BACKENDS", "InversionOptions", "InversionResult", "MAPResult", "PSOOptions", "Problem", "SolverOptions",
+__all__ = ["OPTIMIZERS", "InversionOptions", "InversionResult", "MAPResult", "PSOOptions", "Problem", "SolverOptions",
            "StopSolve", "blend", "clip_window_starts", "energies_at", "free_window_starts", "invert", "refine",
            "regulariser", "seam_report", "solve"]

@@ -4,7 +4,7 @@ It optimises the normalised features of the free frames of a sequence, window by
 (B frames, overlap b, laid out by ``layout``). Each window is conditioned on the solved
 frames before it; its overlap starts from the previous window's solution and its new
 frames from a rollout of the prior (steered by ``swarm`` when enabled); a local
-optimiser of ``backends`` then solves it. The call and the result are shaped like
+optimiser of ``optimizers`` then solves it. The call and the result are shaped like
 ``scipy.optimize.minimize``.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from ..objective import MAPObjective, NonFiniteTermError
-from .backends import BACKENDS
+from .optimizers import OPTIMIZERS
 from .diagnostics import seam_report
 from .layout import WindowWalk
 from .options import SolverOptions
@@ -52,7 +52,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
     temperature = opts.temperature_for(prior)
     walk = WindowWalk(objective, free, problem.start, opts.window, opts.overlap)
     starts = walk.starts
-    local_solve = BACKENDS[opts.method]
+    local_solve = OPTIMIZERS[opts.optimizer]
     t_total = time.perf_counter()
     timings = {"pso": 0.0, "lbfgs": 0.0, "prior": 0.0, "rollout": 0.0, "objective": 0.0}
     terms_start: dict[str, float] = {}

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from ..prior import MotionPrior
-from .backends import BACKENDS
+from .optimizers import OPTIMIZERS
 
 
 @dataclass
@@ -27,14 +27,14 @@ class PSOOptions:
 
 @dataclass
 class SolverOptions:
-    """How to solve. ``method`` is the local optimiser, a key of ``BACKENDS``: 'scipy'
+    """How to solve. ``optimizer`` is the local optimizer, a key of ``OPTIMIZERS``: 'scipy'
     (L-BFGS-B), 'nlopt' (LD_LBFGS), 'torch' (torch.optim.LBFGS) or 'adam' (plain
     first-order baseline). ``time_budget`` (seconds per window) stops any of them when
     spent (for comparisons at equal time)."""
 
     window: int = 34
     overlap: int = 17
-    method: str = "scipy"
+    optimizer: str = "scipy"
     # 30: bench/solver.py (throughput) puts it at about 43 new frames/s for path following
     # on this 2-core CPU with 1.1 cm path error; 40 gives about the same error at 35 frames/s.
     max_iter: int = 30
@@ -59,8 +59,8 @@ class SolverOptions:
         return prior.sample_temperature if self.temperature is None else self.temperature
 
     def __post_init__(self) -> None:
-        if self.method not in BACKENDS:
-            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(BACKENDS)}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"unknown optimizer {self.optimizer!r}; choose one of {', '.join(OPTIMIZERS)}")
         if not 0 <= self.overlap < self.window:
             raise ValueError(f"overlap must be in [0, window): got window {self.window}, overlap {self.overlap}")
 

@@ -251,7 +251,7 @@ def register(sub) -> None:
 def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool) -> None:
     """Options every task command shares; ``method``: it offers --method; ``new_frames``:
     it synthesises frames (where the particle swarm works)."""
-    from motionopt.solver import BACKENDS, PSOOptions, SolverOptions
+    from motionopt.solver import OPTIMIZERS, PSOOptions, SolverOptions
 
     io = p.add_argument_group("input and output")
     io.add_argument("--out", required=True, metavar="OUT.bvh",
@@ -283,7 +283,7 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
                        "encoder alone)" if method else ""))
     s.add_argument("--optimizer", default=None, metavar="NAME",
-                   help=f"local optimiser: {', '.join(BACKENDS)} (default {SolverOptions.method}); scipy is "
+                   help=f"local optimiser: {', '.join(OPTIMIZERS)} (default {SolverOptions.optimizer}); scipy is "
                    "L-BFGS-B, nlopt LD_LBFGS, torch torch.optim.LBFGS, adam a first-order baseline")
     swarm = ("it steers the synthesised frames of --refine; off by default, --pso-particles turns it on"
              if new_frames else "it steers synthesised frames only, so with --method ar it changes nothing here")
@@ -409,10 +409,10 @@ def load_latent_prior(motion, args: argparse.Namespace):
 def solver_options(args: argparse.Namespace, base: SolverOptions,
                    progress: Callable[[dict], object] | None = None) -> SolverOptions:
     """The task's solver settings ``base`` with the command line's knobs applied."""
-    from motionopt.solver import BACKENDS, PSOOptions
+    from motionopt.solver import OPTIMIZERS, PSOOptions
 
-    if args.optimizer is not None and args.optimizer not in BACKENDS:
-        raise UserError(f"--optimizer {args.optimizer!r}: choose one of {', '.join(BACKENDS)}")
+    if args.optimizer is not None and args.optimizer not in OPTIMIZERS:
+        raise UserError(f"--optimizer {args.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
     if args.no_pso and (args.pso_particles or args.pso_iterations):
         raise UserError("--no-pso turns the particle swarm off; drop --pso-particles/--pso-iterations or --no-pso")
     pso = base.pso
@@ -421,7 +421,7 @@ def solver_options(args: argparse.Namespace, base: SolverOptions,
     elif args.pso_particles or args.pso_iterations:
         pso = replace(pso or PSOOptions(), **{k: v for k, v in (("particles", args.pso_particles),
                                                                  ("iterations", args.pso_iterations)) if v})
-    return replace(base, method=args.optimizer or base.method, max_iter=args.iterations or base.max_iter,
+    return replace(base, optimizer=args.optimizer or base.optimizer, max_iter=args.iterations or base.max_iter,
                    pso=pso, seed=args.seed, callback=progress)
 
 

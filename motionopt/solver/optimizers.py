@@ -1,8 +1,8 @@
-"""The local optimisers that solve one window, as a table (``BACKENDS``).
+"""The local optimisers that solve one window, as a table (``OPTIMIZERS``).
 
-Every backend has the signature of ``Backend``: it minimises ``win.fun`` from ``v0``
+Every optimizer has the signature of ``LocalOptimizer``: it minimises ``win.fun`` from ``v0``
 within the iteration and tolerance settings of ``opts`` (a ``SolverOptions``; the
-backends read the fields of ``LocalSettings`` only), asks ``stop(v)`` after every
+optimizers read the fields of ``LocalSettings`` only), asks ``stop(v)`` after every
 iteration (a reason it returns ends the run at the best iterate so far), and returns
 ``(v, iterations, success, message)``.
 """
@@ -18,8 +18,8 @@ from .window import Window
 
 
 class LocalSettings(Protocol):
-    """What the backends read of ``SolverOptions`` (which validates ``method`` against
-    ``BACKENDS``, so this module cannot import it)."""
+    """What the optimizers read of ``SolverOptions`` (which validates ``optimizer`` against
+    ``OPTIMIZERS``, so this module cannot import it)."""
 
     max_iter: int
     ftol: float
@@ -30,7 +30,7 @@ class LocalSettings(Protocol):
 
 #: Asked after every iteration with the current variables: a reason to stop, or None.
 Stop = Callable[[np.ndarray], "str | None"]
-Backend = Callable[[Window, np.ndarray, LocalSettings, Stop], tuple[np.ndarray, int, bool, str]]
+LocalOptimizer = Callable[[Window, np.ndarray, LocalSettings, Stop], tuple[np.ndarray, int, bool, str]]
 
 
 class _Stopped(Exception):
@@ -147,5 +147,5 @@ def adam(win: Window, v0: np.ndarray, opts: LocalSettings, stop: Stop) -> tuple[
     return v.detach().double().numpy(), it, True, "adam finished"
 
 
-#: ``SolverOptions.method`` -> local optimiser.
-BACKENDS: dict[str, Backend] = {"scipy": scipy_lbfgsb, "nlopt": nlopt_lbfgs, "torch": torch_lbfgs, "adam": adam}
+#: ``SolverOptions.optimizer`` -> local optimiser.
+OPTIMIZERS: dict[str, LocalOptimizer] = {"scipy": scipy_lbfgsb, "nlopt": nlopt_lbfgs, "torch": torch_lbfgs, "adam": adam}
