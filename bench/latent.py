@@ -40,13 +40,15 @@ import torch
 from torch import Tensor, nn
 
 from motionopt import bvh
-from motionopt import rotations as R
+from motionopt.codec import Codec
 from motionopt.dataset import build_dataset
-from motionopt.features import RootStart, decode_positions, to_model_motion
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
+from motionopt.noise import capture_noise
 from motionopt.solver import InversionOptions, refine, regulariser
+from motionopt.table import format_table
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
+from priors.heldout import data_folder, held_out_clips
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
 from problems.latent import FidelityTerm, infill, reconstruct
@@ -57,15 +59,20 @@ AR_FOR = {"cmu-latent.pt": "cmu-ccnet.pt", "bandai-latent.pt": "bandai-locomotio
 STRENGTHS = (-2.0, -1.0, 0.0, 1.0, 2.0)
 
 
-def clip_windows(clips: dict[str, Tensor], prior, stride: int) -> Tensor:
-    """Windows (N, window, D) of clips' raw features, normalised for ``prior``."""
-    out = [prior.normalizer.normalize(x).float().unfold(0, prior.window, stride).permute(0, 2, 1)
-           for x in clips.values() if len(x) >= prior.window]
-    return torch.cat(out)
+def clip_windows(clips: list[Tensor], window: int, stride: int) -> Tensor:
+    """Windows (N, window, D) of normalised clips (T, D), from those at least ``window`` frames long."""
+    return torch.cat([x.unfold(0, window, stride).permute(0, 2, 1) for x in clips if len(x) >= window])
 
 
 def positions(prior, x: Tensor) -> Tensor:
-    return decode_positions(prior.normalizer.denormalize(x.double()), prior.spec, prior.skeleton, RootStart())
+    """World joint positions of normalised windows, each decoded from the origin, in float64."""
+    return Codec.of(prior).positions(x.double())
+
+
+def renormalised(x: Tensor, source, target) -> Tensor:
+    """Features normalised for prior ``source``, normalised for ``target`` instead (each
+    prior normalises with statistics of its own training set)."""
+    return target.normalizer.normalize(Codec.of(source).raw(x.double())).float()
 
 
 def errors(prior, pred: Tensor, target: Tensor) -> dict[str, float]:
@@ -78,8 +85,7 @@ def reconstruction(prior, val: Tensor, iters: int, reg: float) -> list[str]:
     lines = ["1. Reconstruction of held-out windows (mm, mean Euclidean distance; paper: root 59.0, local 20.4, "
              "global 78.2 on Mixamo)",
              f"   {len(val)} windows of {prior.window} frames; refinement: L-BFGS {iters} iterations, "
-             f"fidelity sigma 5 cm, W regulariser weight {reg}",
-             f"   {'method':<34}{'root':>9}{'local':>9}{'global':>9}{'s/window':>10}"]
+             f"fidelity sigma 5 cm, W regulariser weight {reg}"]
     with torch.no_grad():
         t0 = time.perf_counter()
         codes = prior.encode(val)
@@ -96,8 +102,9 @@ def reconstruction(prior, val: Tensor, iters: int, reg: float) -> list[str]:
         mask = torch.zeros(len(val), prior.window)
         mask[:, :half] = 1
         masked = prior.generate(prior.encode_masked(val, mask))
-    for name, e, t in rows:
-        lines.append(f"   {name:<34}{e['root_mm']:>9.1f}{e['local_mm']:>9.1f}{e['global_mm']:>9.1f}{t:>10.4f}")
+    lines += format_table(["method", "root", "local", "global", "s/window"],
+                          [[name, f"{e['root_mm']:.1f}", f"{e['local_mm']:.1f}", f"{e['global_mm']:.1f}", f"{t:.4f}"]
+                           for name, e, t in rows])
     lower = rows[1][1]["root_mm"] < rows[0][1]["root_mm"] and rows[1][1]["local_mm"] < rows[0][1]["local_mm"]
     lines.append(f"   refinement lowers both root and local error: {'yes' if lower else 'NO'}")
     pm, pv = positions(prior, masked), positions(prior, val)
@@ -171,13 +178,12 @@ def sampling(prior, ar_path: Path | None, train: Tensor, val: Tensor, n: int = 5
         else:
             # the two priors normalise with statistics of their own training sets
             ctx = val[torch.randint(len(val), (min(n, 256),), generator=g), :8]
-            ctx = ar.normalizer.normalize(prior.normalizer.denormalize(ctx.double())).float()
+            ctx = renormalised(ctx, prior, ar)
             for temperature in sorted({ar.sample_temperature, 1.0}):
                 t0 = time.perf_counter()
                 roll = ar.sample(ctx, prior.window, generator=g, temperature=temperature)
                 seconds = time.perf_counter() - t0
-                roll = prior.normalizer.normalize(ar.normalizer.denormalize(roll.double())).float()
-                sets.append((f"AR prior rollouts, temperature {temperature:g}", roll))
+                sets.append((f"AR prior rollouts, temperature {temperature:g}", renormalised(roll, ar, prior)))
             notes.append(f"{ar_path.name}: {seconds / len(ctx) * 1000:.1f} ms per rollout window "
                          f"(trained on {len(ar.metadata.get('train_clips', []))} clips, "
                          f"{ar.metadata.get('epochs_done')} epochs)")
@@ -186,10 +192,9 @@ def sampling(prior, ar_path: Path | None, train: Tensor, val: Tensor, n: int = 5
     noise[..., c] = (noise[..., c] > 0).float()
     sets.append(("Gaussian noise (normalised space)", noise))
     lines = [f"2. Sampling quality: Fréchet distance to {len(val)} held-out windows (autoencoder features, "
-             f"{ref.shape[1]} dims; autoencoder trained on {len(train)} training windows in {t_ae:.0f} s)",
-             f"   {'set':<48}{'windows':>8}{'FD':>12}"]
-    for name, x in sets:
-        lines.append(f"   {name:<48}{len(x):>8}{frechet_distance(ae.features(x), ref):>12.2f}")
+             f"{ref.shape[1]} dims; autoencoder trained on {len(train)} training windows in {t_ae:.0f} s)"]
+    lines += format_table(["set", "windows", "FD"],
+                          [[name, len(x), f"{frechet_distance(ae.features(x), ref):.2f}"] for name, x in sets])
     lines += [f"   {s}" for s in notes]
     return lines
 
@@ -213,13 +218,13 @@ def semantic(prior) -> list[str]:
              "root path change: mean horizontal distance to the unedited path, cm)",
              "   bound: each other attribute moves less than half as far as the edited one (in std of unedited "
              f"scores), and edits of gral and crouch move the root path less than {ROOT_PATH_BOUND_CM:g} cm on "
-             "average (root_speed moves it by design)",
-             f"   {'edit':<12}{'strength':>9}" + "".join(f"{k:>12}" for k in names) + f"{'root cm':>9}"
-             + f"{'max other/edited':>18}"]
+             "average (root_speed moves it by design)"]
+    blocks: list[tuple[list[list[str]], list[str]]] = []  # per attribute: its table rows, then its verdict
     for name in names:
         if name not in dirs:
-            lines.append(f"   {name}: no direction in the checkpoint")
+            blocks.append(([], [f"   {name}: no direction in the checkpoint"]))
             continue
+        rows = []
         means, roots = [], []
         for s in STRENGTHS:
             x = prior.generate(edit_codes(w, dirs[name], s))
@@ -230,14 +235,18 @@ def semantic(prior) -> list[str]:
             moved = abs(means[-1][name] - float(base[name].mean())) / std[name]
             other = max(abs(means[-1][k] - float(base[k].mean())) / std[k] for k in names if k != name)
             ratio = "" if s == 0 else f"{other / max(moved, 1e-9):.2f}"
-            lines.append(f"   {name:<12}{s:>9.1f}" + "".join(f"{means[-1][k]:>12.3f}" for k in names)
-                         + f"{float(root):>9.1f}{ratio:>18}")
+            rows.append([name, f"{s:.1f}", *(f"{means[-1][k]:.3f}" for k in names), f"{float(root):.1f}", ratio])
         seq = [m[name] for m in means]
         mono = all(b > a for a, b in zip(seq, seq[1:]))
         path = "" if name == "root_speed" else (
             f"; root path within {ROOT_PATH_BOUND_CM:g} cm: {'yes' if max(roots) < ROOT_PATH_BOUND_CM else 'NO'}")
-        lines.append(f"   {name}: classifier accuracy {dirs[name].accuracy:.2f}; score monotonic in strength: "
-                     f"{'yes' if mono else 'NO'}{path}")
+        blocks.append((rows, [f"   {name}: classifier accuracy {dirs[name].accuracy:.2f}; score monotonic in "
+                              f"strength: {'yes' if mono else 'NO'}{path}"]))
+    table = iter(format_table(["edit", "strength", *names, "root cm", "max other/edited"],
+                              [r for rows, _ in blocks for r in rows]))
+    lines.append(next(table))
+    for rows, verdict in blocks:
+        lines += [next(table) for _ in rows] + verdict
     classifier = style_classifier_of(prior.metadata)
     styles = [k for k in sorted(dirs) if k.startswith("style:")]
     if classifier is not None and styles:
@@ -256,9 +265,8 @@ def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Ten
                f"{classifier.heldout_accuracy:.2f} on {classifier.heldout_windows} windows of held-out clips")
     lines = [f"   styles: probability the style classifier gives the style (linear softmax over window "
              f"descriptors, {len(classifier.styles)} styles, fitted on {classifier.train_windows} training "
-             f"windows; accuracy {heldout}), by strength " + " ".join(f"{s:g}" for s in STRENGTHS),
-             f"   {'style':<22}{'W acc':>6}" + "".join(f"{s:>7g}" for s in STRENGTHS)
-             + f"{'monotonic':>10}{'max other/edited':>18}{'root cm':>9}"]
+             f"windows; accuracy {heldout}), by strength " + " ".join(f"{s:g}" for s in STRENGTHS)]
+    rows = []
     n_mono = 0
     for d in dirs:
         style = d.name.removeprefix("style:")
@@ -276,26 +284,18 @@ def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Ten
                 root = max(root, float((scorer.root_path(x) - base_root)[..., [0, 2]].norm(dim=-1).mean() * 100))
         mono = all(b > a for a, b in zip(probs, probs[1:]))
         n_mono += mono
-        lines.append(f"   {style:<22}{d.accuracy:>6.2f}" + "".join(f"{p:>7.3f}" for p in probs)
-                     + f"{'yes' if mono else 'NO':>10}{ratio:>18.2f}{root:>9.1f}")
+        rows.append([style, f"{d.accuracy:.2f}", *(f"{p:.3f}" for p in probs), "yes" if mono else "NO",
+                     f"{ratio:.2f}", f"{root:.1f}"])
+    lines += format_table(["style", "W acc", *(f"{s:g}" for s in STRENGTHS), "monotonic", "max other/edited",
+                           "root cm"], rows)
     lines.append(f"   styles whose probability rises monotonically with strength: {n_mono}/{len(dirs)}")
     return lines
 
 
-def add_noise(motion: Motion, angle_sigma: float, root_sigma: float, seed: int) -> Motion:
-    """Capture-like noise: every local rotation turned by an axis-angle from N(0, s^2 I),
-    the root moved by N(0, root_sigma^2) per axis (metres)."""
-    g = torch.Generator().manual_seed(seed)
-    q = torch.from_numpy(motion.rotations)
-    turn = R.axis_angle_to_quat(torch.randn(q.shape[:-1] + (3,), generator=g, dtype=q.dtype) * angle_sigma)
-    root = motion.root + torch.randn(motion.root.shape, generator=g, dtype=q.dtype).numpy() * root_sigma
-    return motion.with_frames(R.quat_multiply(q, turn).numpy(), root, motion.translations)
-
-
 def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None)) -> float:
     """Mean world joint position error (mm) on the prior's joints, at the prior's rate."""
-    a = to_model_motion(out, prior.spec).positions()
-    b = to_model_motion(clean, prior.spec).positions()
+    codec = Codec.of(prior)
+    a, b = codec.model_motion(out).positions(), codec.model_motion(clean).positions()
     n = min(len(a), len(b))
     return float(np.linalg.norm(a[:n][frames] - b[:n][frames], axis=-1).mean() * 1000)
 
@@ -320,7 +320,7 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
     for i, name in enumerate(clips):
         full = bvh.load(data / name)
         clean = full[: int(seconds * full.fps)]
-        noisy = add_noise(clean, 0.05, 0.01, seed=i)
+        noisy = capture_noise(clean, 0.05, 0.01, seed=i)
         record("denoise: noisy input", model_error_mm(prior, noisy, clean), 0.0)
         for label, opts in (("latent encoder", InversionOptions()),
                             ("latent + L-BFGS 30", InversionOptions(refine_iters=30))):
@@ -350,10 +350,10 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
     lines = [f"4. Tasks on the first {seconds:g} s of each held-out clip ({len(clips)} clips): mean joint position "
              "error against the clean clip (mm; in-betweening: on the gap frames) and seconds per clip",
              "   denoising input: rotations turned by N(0, 0.05 rad) per axis, root moved by N(0, 1 cm)",
-             "   (in-betweening only on clips of at least 4 s)",
-             f"   {'task and method':<52}{'clips':>6}{'error mm':>10}{'s/clip':>9}"]
-    for name, v in rows.items():
-        lines.append(f"   {name:<52}{len(v):>6}{np.mean([e for e, _ in v]):>10.1f}{np.mean([t for _, t in v]):>9.2f}")
+             "   (in-betweening only on clips of at least 4 s)"]
+    lines += format_table(["task and method", "clips", "error mm", "s/clip"],
+                          [[name, len(v), f"{np.mean([e for e, _ in v]):.1f}", f"{np.mean([t for _, t in v]):.2f}"]
+                           for name, v in rows.items()])
     if ar_note:
         lines.append(f"   {ar_note}")
     return lines
@@ -362,11 +362,12 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
 def bench(path: Path, iters: int, reg: float) -> list[str]:
     prior = load_prior(path)
     meta = prior.metadata
-    data = Path(meta["data"])
-    data = data if data.is_absolute() else ROOT / data
+    data = data_folder(meta)
     t0 = time.perf_counter()
-    ds = build_dataset(data, spec=prior.spec, val=meta["validation_clips"])
-    val_r = clip_windows(ds.val, prior, prior.window // 2)
+    train = build_dataset(data, spec=prior.spec, val=[], include=meta["train_clips"]).train
+    train_x = [prior.normalizer.normalize(x).float() for x in train.values()]  # as held_out_clips normalises
+    val_x = [c.x for c in held_out_clips(prior, data)]
+    val_r = clip_windows(val_x, prior.window, prior.window // 2)
     lines = [f"== {path.name}: {meta.get('licence')}",
              f"   {len(meta['train_clips'])} training clips, validation clips {', '.join(meta['validation_clips'])}; "
              f"{meta.get('steps_done')} steps in {meta.get('training_minutes', 0):.0f} min; "
@@ -374,7 +375,7 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
              f"{path.stat().st_size / 1e6:.1f} MB; data prepared in {time.perf_counter() - t0:.0f} s"]
     lines += reconstruction(prior, val_r, iters, reg)
     ar = CHECKPOINT_DIR / AR_FOR[path.name] if path.name in AR_FOR else None
-    lines += sampling(prior, ar, clip_windows(ds.train, prior, 8), clip_windows(ds.val, prior, 8))
+    lines += sampling(prior, ar, clip_windows(train_x, prior.window, 8), clip_windows(val_x, prior.window, 8))
     lines += semantic(prior)
     lines += tasks(prior, ar, data, meta["validation_clips"])
     return lines
