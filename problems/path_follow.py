@@ -12,7 +12,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from motionopt.metrics import foot_skating
-from motionopt.motion import Motion
+from motionopt.motion import Motion, unit_scale
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
@@ -28,6 +28,8 @@ MAX_NEW_SECONDS = 600.0
 JOIN_SECONDS = 0.5
 #: Distance (m) from the path beyond which the result is said to leave it.
 PATH_TOLERANCE = 0.1
+#: Units a path is often written in by mistake for metres, tried in this order to explain a pace no one runs.
+UNIT_MISTAKES = {"cm": "centimetres", "mm": "millimetres"}
 #: Most points a PATH.csv may hold: more than 10 minutes at 8 m/s with a point every 5 cm.
 MAX_PATH_POINTS = 100_000
 
@@ -71,8 +73,11 @@ class PathFollow:
     ``metrics.foot_skating``). With ``refine`` the MAP solver (path, contact and prior
     terms) then polishes it.
 
-    A timing faster than a person moves, or a result that leaves the path by more than
-    ``PATH_TOLERANCE``, still gives the best compromise, with ``TaskResult.warnings`` saying so.
+    A pace faster than a person moves (``MAX_HUMAN_SPEED``, along the path or joining it
+    from the seed's end) is refused before any synthesis (``check_pace``): such a path is
+    most often written in another unit than metres. A result that leaves the path by more
+    than ``PATH_TOLERANCE`` still gives the best compromise, with ``TaskResult.warnings``
+    saying so. ``path_name`` names the path in messages (its file, on the command line).
     """
 
     seed: Motion
@@ -87,6 +92,7 @@ class PathFollow:
     options: SolverOptions = field(default_factory=SolverOptions)
     refine: bool = False
     candidates: int = 8
+    path_name: str = "the path"
 
     def __post_init__(self) -> None:
         self.path = np.asarray(self.path, dtype=np.float64)
@@ -179,6 +185,7 @@ class PathFollow:
         off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
         fade = smoothstep(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1))[:, None]
         tgt = tgt + off * fade
+        self.check_pace(speed, prep.model.root[-1, [0, 2]], float(np.linalg.norm(off)))
         n_seed = len(prep.x)
         n = n_seed + n_new
         cidx = prior.spec.contact_indices()
@@ -224,7 +231,7 @@ class PathFollow:
             "speed_m_per_s": speed,
             "frames_per_second": n_new / max(seconds, 1e-9),
         }
-        warnings = warned(self.speed_warnings(speed, float(np.linalg.norm(off))) + distance_warnings(dist))
+        warnings = warned(distance_warnings(dist))
         settings = {"sigma_path": self.sigma_path, "speed": speed, "new_seconds": n_new / fps, "refine": self.refine,
                     "temperature": self.options.temperature_for(prior)}
         return TaskResult(motion, model, result, metrics, settings, warnings)
@@ -240,28 +247,36 @@ class PathFollow:
                 f"naturalness: {m['prior_nll_per_frame']:.1f} nats per frame under the prior (lower is more natural)",
                 f"speed: {m['frames_per_second']:.0f} frames per second"]
 
-    def speed_warnings(self, speed: float, join: float) -> list[str]:
-        """Where the timing asks the root to go faster than a person: the path's speed
-        (``speed``, requested or the seed's; with times, their fastest stretch), and the
-        join from the seed's end ``join`` metres away from the path over ``JOIN_SECONDS``."""
+    def check_pace(self, speed: float, seed_end: np.ndarray, join: float) -> None:
+        """Refuse, before any synthesis, a timing that asks the root to go faster than a
+        person: the path's speed (``speed``, requested or the seed's; with times, their
+        fastest stretch), and the join from the seed's end (``seed_end``, x and z), ``join``
+        metres away from the path, over ``JOIN_SECONDS``. The error says which, and the
+        unit the path's numbers are likely in when that pace is a unit mistake."""
         beyond = f"faster than a person runs (about {MAX_HUMAN_SPEED:g} m/s at most)"
-        out = []
+        problems = []
         if self.times is not None:
             stretch = np.linalg.norm(np.diff(self.path, axis=0), axis=1)
             dt = np.diff(self.times)
             k = int(np.argmax(stretch / dt))
             if stretch[k] / dt[k] > MAX_HUMAN_SPEED:
-                out.append(f"path-follow: the path's times ask for {stretch[k] / dt[k]:.1f} m/s from t = "
-                           f"{self.times[k]:g} s to {self.times[k + 1]:g} s ({stretch[k]:.2f} m in {dt[k]:g} s), "
-                           f"{beyond}; the motion keeps to the timing as well as it can but cannot look natural")
+                problems.append((f"its times ask for {stretch[k] / dt[k]:.1f} m/s from t = {self.times[k]:g} s to "
+                                 f"{self.times[k + 1]:g} s ({stretch[k]:.2f} m in {dt[k]:g} s)", stretch[k] / dt[k]))
         elif speed > MAX_HUMAN_SPEED:
             what = "the requested speed" if self.speed is not None else "the seed's speed"
-            out.append(f"path-follow: {what} {speed:.1f} m/s is {beyond}; the motion keeps to it as well as it "
-                       "can but cannot look natural")
+            problems.append((f"{what} is {speed:.1f} m/s", None))
         if join / JOIN_SECONDS > MAX_HUMAN_SPEED:
-            out.append(f"path-follow: the seed ends {join:.2f} m from the path at its timing; joining it in "
-                       f"{JOIN_SECONDS:g} s asks for {join / JOIN_SECONDS:.1f} m/s, {beyond}")
-        return out
+            problems.append((f"the seed ends at x, z = {seed_end[0]:.2f}, {seed_end[1]:.2f}, {join:.2f} m from where "
+                             f"the path takes it, and joining it in {JOIN_SECONDS:g} s asks for "
+                             f"{join / JOIN_SECONDS:.1f} m/s", join / JOIN_SECONDS))
+        if not problems:
+            return
+        paces = [pace for _, pace in problems if pace is not None]
+        unit = next((u for u in UNIT_MISTAKES if paces and max(paces) * unit_scale(u) <= MAX_HUMAN_SPEED), None)
+        hint = (f"; {self.path_name} is read in metres, in the seed file's world coordinates: if it is in "
+                f"{UNIT_MISTAKES[unit]}, pass --path-unit {unit}" if unit else "")
+        raise ValueError(f"path-follow: {self.path_name} is refused before synthesis: "
+                         f"{'; '.join(text for text, _ in problems)}, {beyond}{hint}")
 
 
 def distance_warnings(dist: np.ndarray) -> list[str]:
@@ -277,10 +292,10 @@ def distance_warnings(dist: np.ndarray) -> list[str]:
     return out
 
 
-def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read PATH.csv: a header line naming the columns ``x`` and ``z`` (metres, world
-    ground plane) and optionally ``t`` (seconds after the seed's end), then one point per
-    line. Returns the points (N, 2) and the times (N,) or None.
+def read_path_csv(path: str | Path, unit: str = "m") -> tuple[np.ndarray, np.ndarray | None]:
+    """Read PATH.csv: a header line naming the columns ``x`` and ``z`` (world ground plane,
+    in ``unit``: metres unless told) and optionally ``t`` (seconds after the seed's end),
+    then one point per line. Returns the points (N, 2) in metres and the times (N,) or None.
 
     The file is data, never evaluated: UTF-8 (a BOM is fine) of at most ``MAX_FILE_BYTES``,
     at most ``MAX_PATH_POINTS`` points, every value a finite number, coordinates within
@@ -303,7 +318,7 @@ def read_path_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
         values[k] = [_cell(text, name, f"{path}:{line}") for name, text in zip(names, row)]
     if len(values) < 2:
         raise ValueError(f"{path}: the path needs at least 2 points, found {len(values)}")
-    points = values[:, [names.index("x"), names.index("z")]]
+    points = values[:, [names.index("x"), names.index("z")]] * unit_scale(unit)
     if "t" not in names:
         return points, None
     times = values[:, names.index("t")]

@@ -109,6 +109,24 @@ def test_path_follow_continues_the_seed_along_the_path(capsys, clips, tmp_path):
     assert "root distance to the path" in stdout and f"wrote {out}" in stdout
 
 
+def test_path_follow_refuses_a_path_in_centimetres_before_synthesis(capsys, clips, tmp_path):
+    needs("bandai-locomotion-ccnet.pt")
+    seed = bvh.load(clips["walk"])
+    root = seed.positions()[:, body_root(seed.skeleton), [0, 2]]
+    heading = (root[-1] - root[-10]) / np.linalg.norm(root[-1] - root[-10])
+    points = np.stack([root[-1], root[-1] + 1.5 * heading]) * 100  # the same path, in centimetres
+    path, out = tmp_path / "path.csv", tmp_path / "out.bvh"
+    path.write_text("x,z\n" + "".join(f"{x},{z}\n" for x, z in points))
+    rc, stdout, err = run(capsys, "path-follow", clips["walk"], "--path", path, "--out", out, "--seconds", 0.3, *TINY)
+    assert rc == 1 and stdout == "" and not out.exists()
+    line, = err.strip().splitlines()
+    assert f"{path} is refused before synthesis" in line and "m/s" in line and "pass --path-unit cm" in line
+    rc, stdout, err = run(capsys, "path-follow", clips["walk"], "--path", path, "--path-unit", "cm", "--out", out,
+                          "--seconds", 0.3, "--report", tmp_path / "r.json", *TINY)
+    assert rc == 0, err
+    assert json.loads((tmp_path / "r.json").read_text())["metrics"]["path_distance_cm_mean"] < 20
+
+
 def test_denoise_reduces_jitter_and_tells_what_it_does(capsys, clips, tmp_path):
     needs("cmu-ccnet.pt")
     out = tmp_path / "clean.bvh"

@@ -1,6 +1,7 @@
-"""Constraints no person can meet (too fast, too far, out of a limb's reach) still give
-the best compromise, with warnings that name the constraint and by how much: in the
-task result, in the --report JSON under "warnings", and in the log. Short shipped clips,
+"""Constraints no person can meet (too far, out of a limb's reach) still give the best
+compromise, with warnings that name the constraint and by how much: in the task result,
+in the --report JSON under "warnings", and in the log; a path-following pace no person
+runs is refused before synthesis. Short shipped clips,
 no solver, so each case takes a second or two."""
 from __future__ import annotations
 
@@ -51,46 +52,45 @@ def only(warnings: list[str], words: str) -> str:
 
 # ---- path following ---------------------------------------------------------------------------------
 
-def test_path_follow_too_fast_warns_in_the_report_and_the_log(capsys, caplog, walk, tmp_path):
+def test_path_follow_too_fast_is_refused_before_synthesis(capsys, walk, tmp_path):
     motion, _, end, heading = walk
     clip, path = tmp_path / "walk.bvh", tmp_path / "path.csv"
     bvh.save(motion, clip)
     far = end + 10 * heading
     path.write_text(f"x,z\n{end[0]},{end[1]}\n{far[0]},{far[1]}\n")
-    report = tmp_path / "report.json"
-    with caplog.at_level(logging.WARNING, logger="problems"):
-        rc = main([str(a) for a in ("path-follow", clip, "--path", path, "--speed", 20, "--seconds", 0.5,
-                                    "--out", tmp_path / "out.bvh", "--report", report, *TINY)])
-    assert rc == 0, capsys.readouterr().err
-    text = ("path-follow: the requested speed 20.0 m/s is faster than a person runs (about 8 m/s at most); "
-            "the motion keeps to it as well as it can but cannot look natural")
-    assert json.loads(report.read_text())["warnings"] == [text]
-    assert [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING] == [text]
+    out = tmp_path / "out.bvh"
+    rc = main([str(a) for a in ("path-follow", clip, "--path", path, "--speed", 20, "--seconds", 0.5,
+                                "--out", out, *TINY)])
+    assert rc == 1 and not out.exists()
+    assert capsys.readouterr().err.strip() == (
+        f"motionopt path-follow: error: path-follow: {path} is refused before synthesis: the requested speed is "
+        "20.0 m/s, faster than a person runs (about 8 m/s at most)")
 
 
 def test_path_follow_times_faster_than_a_person_name_the_stretch(walk):
     motion, walk_prior, end, heading = walk
     path = np.stack([end, end + 1.0 * heading, end + 11.0 * heading])
-    result = PathFollow(motion, path, walk_prior, times=np.array([0.0, 0.5, 1.0]), candidates=2).solve()
-    only(result.warnings, "the path's times ask for 20.0 m/s from t = 0.5 s to 1 s (10.00 m in 0.5 s), faster "
-                          "than a person runs (about 8 m/s at most)")
-    assert len(result.warnings) == 1 and result.report()["warnings"] == result.warnings
+    with pytest.raises(ValueError, match=r"its times ask for 20\.0 m/s from t = 0\.5 s to 1 s \(10\.00 m in "
+                                         r"0\.5 s\), faster than a person runs \(about 8 m/s at most\); the path is read in metres"):
+        PathFollow(motion, path, walk_prior, times=np.array([0.0, 0.5, 1.0]), candidates=2).solve()
 
 
-def test_path_follow_far_from_the_seed_warns_of_the_join_and_the_distance(walk):
+def test_path_follow_far_from_the_seed_refuses_the_join_and_warns_of_the_distance(walk):
     motion, walk_prior, end, heading = walk
     side = np.array([-heading[1], heading[0]])
-    a, b = end + 5 * side, end + 5 * side + 10 * heading
+    with pytest.raises(ValueError, match=r"the seed ends at x, z = .*, 5\.0\d m from where the path takes it, and "
+                                         r"joining it in 0\.5 s asks for 10\.\d m/s"):
+        PathFollow(motion, np.stack([end + 5 * side, end + 5 * side + 10 * heading]), walk_prior, seconds=0.3,
+                   candidates=2).solve()
+    a, b = end + 2 * side, end + 2 * side + 10 * heading  # a join at 4 m/s: made, and the root stays off the path
     result = PathFollow(motion, np.stack([a, b]), walk_prior, seconds=0.3, candidates=2).solve()
     n_seed = 30  # the seed's frames at the prior's rate (both 30 fps)
     dist = distance_to_segment(result.model_motion.root[n_seed:, [0, 2]], a, b)
     assert dist.mean() == pytest.approx(result.metrics["path_distance_cm_mean"] / 100)
-    join = only(result.warnings, "the seed ends ")
-    assert join.startswith("path-follow: the seed ends 5.0") and "asks for 10." in join
     only(result.warnings, f"the root keeps {dist.mean():.2f} m from the path on average ({dist.max():.2f} m at "
                           "most), beyond the tolerance of 0.1 m")
     only(result.warnings, f"the motion ends {dist[-1]:.2f} m from the path, beyond the tolerance of 0.1 m")
-    assert dist[-1] > 0.1
+    assert dist[-1] > 0.1 and len(result.warnings) == 2
 
 
 def test_path_follow_within_reach_has_no_warnings(walk):
@@ -116,6 +116,20 @@ def test_edit_out_of_reach_names_the_target_the_miss_and_the_limb(walk):
     only(result.warnings, f"edit: target 0 (Hand_L) is missed by more than 1 cm at 3 of its 3 frames, by up to "
                           f"{miss.max() * 100:.1f} cm at frame {10 + worst}; the target is {reach:.2f} m from "
                           f"Shoulder_L, out of reach of the {arm:.2f} m limb")
+
+
+def test_warnings_go_to_the_report_and_the_log(capsys, caplog, walk, tmp_path):
+    motion, _, _, _ = walk
+    clip, targets, report = tmp_path / "walk.bvh", tmp_path / "targets.json", tmp_path / "report.json"
+    bvh.save(motion, clip)
+    targets.write_text(json.dumps([{"joint": "Hand_L", "frame": [10, 12], "offset": [0.0, 3.0, 0.0]}]))
+    with caplog.at_level(logging.WARNING, logger="problems"):
+        rc = main([str(a) for a in ("edit", clip, "--targets", targets, "--out", tmp_path / "out.bvh", "--report",
+                                    report, *TINY)])
+    assert rc == 0, capsys.readouterr().err
+    warnings = json.loads(report.read_text())["warnings"]
+    assert len(warnings) == 1 and "out of reach" in warnings[0]
+    assert [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING] == warnings
 
 
 def test_edit_with_clashing_targets_names_the_one_missed(walk):

@@ -147,7 +147,7 @@ class TaskEntry:
 
 def _read_path(args: argparse.Namespace, seed: Motion) -> tuple[np.ndarray, np.ndarray | None]:
     """PATH.csv's points and times, refusing --speed where the file gives the timing."""
-    points, times = _problems().path_follow.read_path_csv(args.path)
+    points, times = _problems().path_follow.read_path_csv(args.path, args.path_unit)
     if times is not None and args.speed is not None:
         raise UserError(f"{args.path} sets the timing with its t column; drop --speed")
     return points, times
@@ -168,12 +168,15 @@ TASKS: dict[str, TaskEntry] = {
     "path-follow": TaskEntry(
         help="continue a motion so that its root walks along a path on the ground",
         description="Continue SEED.bvh along the ground path in PATH.csv (a header line 'x,z', optionally 't' in "
-        "seconds after the seed's end, then one point per line; metres in the seed file's world coordinates). "
+        "seconds after the seed's end, then one point per line; metres, or --path-unit, in the seed file's world "
+        "coordinates). A pace faster than a person runs is refused before any synthesis. "
         "OUT.bvh holds the seed's frames followed by the new motion. --plot draws the root's path against the "
         "target path.",
         arguments=(
             arg("input", metavar="SEED.bvh", help="motion whose end the new motion continues"),
             arg("--path", required=True, metavar="PATH.csv", help="ground points to follow (x,z[,t])"),
+            arg("--path-unit", choices=("m", "cm", "mm", "in"), default="m",
+                help="length unit of PATH.csv's x and z (default m)"),
             arg("--seconds", type=_positive(float), default=None, metavar="S",
                 help="seconds of new motion (default: enough to reach the path's end)"),
             arg("--speed", type=_positive(float), default=None, metavar="M_PER_S",
@@ -181,7 +184,8 @@ TASKS: dict[str, TaskEntry] = {
                 "t column")),
         read=_read_path,
         build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
-            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine),
+            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine,
+            path_name=a.path),
         draw=_root_paths),
     "denoise": TaskEntry(
         help="clean captured motion: remove jitter, foot sliding and ground penetration",
