@@ -53,14 +53,18 @@ import torch
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench.prior import data_folder, position_noise, table  # noqa: E402
-from motionopt import bvh  # noqa: E402
-from motionopt.features import decode_positions, encode, to_model_motion  # noqa: E402
+from bench.prior import table  # noqa: E402
+from motionopt.codec import Codec  # noqa: E402
 from motionopt.metrics import foot_skating  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
-from motionopt.objective import ContactTerm, MAPObjective, PathTerm, PoseFidelityTerm, nearest_on_polyline_sq  # noqa: E402
+from motionopt.noise import position_noise  # noqa: E402
+from motionopt.objective import MAPObjective, PathTerm, nearest_on_polyline_sq  # noqa: E402
 from motionopt.solver import MAPResult, Problem, PSOOptions, SolverOptions, solve  # noqa: E402
+from motionopt.solver.diagnostics import energies_at  # noqa: E402
 from priors.checkpoint import CHECKPOINT_DIR, load_prior  # noqa: E402
+from priors.heldout import held_out_clips  # noqa: E402
+from problems.common import TermSigmas, prepare, standard_terms  # noqa: E402
+from problems.denoise import Denoise  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "solver.txt"
 CMU = CHECKPOINT_DIR / "cmu-ccnet.pt"
@@ -82,6 +86,7 @@ class Case:
     path: np.ndarray | None = None
     input_error_cm: float | None = None   # denoising: MPJPE of the noisy input
     input_skating_cm_s: float | None = None
+    truth: Problem | None = None          # denoising: the clean clip's features, from its own root start
 
     def error_cm(self, res: MAPResult) -> float:
         pos = positions(self, res)
@@ -98,31 +103,22 @@ class Case:
 
 
 def positions(case: Case, res: MAPResult) -> np.ndarray:
-    prior = case.objective.prior
-    raw = prior.normalizer.denormalize(res.x.double())
-    return decode_positions(raw, prior.spec, case.clean.skeleton, case.problem.start).numpy()
-
-
-def contact_term(prior, model: Motion) -> ContactTerm:
-    cidx = prior.spec.contact_indices()
-    return ContactTerm(cidx, np.percentile(model.positions()[:, cidx, 1], 5.0, axis=0), 0.1, 0.02)
+    return Codec.of(case.objective.prior, case.clean.skeleton).positions(res.x.double(), case.problem.start).numpy()
 
 
 def held_out(prior, walking_only: bool, min_seconds: float = 2.0) -> list[tuple[str, Motion]]:
     """Validation clips of the prior (walking ones only, if asked) at least ``min_seconds``
     long, on its joints at its frame rate."""
-    folder = data_folder(prior.metadata)
-    names = [n for n in prior.metadata["validation_clips"] if not walking_only or "_walk" in n]
-    clips = [(n, to_model_motion(bvh.load(folder / n), prior.spec)) for n in names]
-    return [(n, m) for n, m in clips if m.num_frames >= min_seconds * prior.spec.fps]
+    return [(c.name, c.motion) for c in held_out_clips(prior, contains="_walk" if walking_only else None,
+                                                       min_seconds=min_seconds)]
 
 
 def path_case(prior, name: str, model: Motion, seconds: float) -> Case:
     fps = prior.spec.fps
     n_seed = int(fps)
     n = min(len(model.root), n_seed + int(round(seconds * fps)))
-    raw, start = encode(model, prior.spec)
-    x = prior.normalizer.normalize(raw).float()
+    seed = prepare(model, prior)
+    x, start = seed.x, seed.start
     route = model.root[n_seed - 1:n, [0, 2]]
     path = route[np.r_[np.arange(0, len(route) - 1, 5), len(route) - 1]]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
@@ -135,23 +131,24 @@ def path_case(prior, name: str, model: Motion, seconds: float) -> Case:
     x0[:n_seed] = x[:n_seed]
     terms = [PathTerm(path, 0.02, mask=free, name="path"),
              PathTerm(path, 0.3, targets=timed, mask=free, name="path_timing"),
-             contact_term(prior, model[:n_seed])]
+             *standard_terms(prepare(model[:n_seed], prior), prior, TermSigmas())]
     return Case("path", name, MAPObjective(prior, model.skeleton, terms), Problem(x0, free, start), model[:n],
                 n_seed, path)
 
 
 def denoise_case(prior, name: str, model: Motion, seconds: float, rms: float = 0.03) -> Case:
+    """Denoising as the task sets it up (``Denoise.setup``: fidelity at the estimated
+    noise, contacts, started from the filtered input)."""
     n = min(len(model.root), int(round(seconds * prior.spec.fps)))
     clean = model[:n]
     noisy, _ = position_noise(clean, rms)
-    raw, start = encode(noisy, prior.spec)
-    terms = [PoseFidelityTerm(noisy.root, noisy.rotations, 0.03, 0.08, name="fidelity"), contact_term(prior, noisy)]
-    problem = Problem(prior.normalizer.normalize(raw).float(), np.ones(n, bool), start)
+    setup = Denoise(noisy, prior).setup()
+    truth = prepare(clean, prior)
     err = float(np.linalg.norm(noisy.positions() - clean.positions(), axis=-1).mean()) * 100
     cidx = prior.spec.contact_indices()
     skate = float(foot_skating(torch.from_numpy(noisy.positions()), prior.spec.fps, cidx)) * 100
-    return Case("denoise", name, MAPObjective(prior, model.skeleton, terms), problem, clean, 0,
-                input_error_cm=err, input_skating_cm_s=skate)
+    return Case("denoise", name, setup.objective, setup.problem, clean, 0, input_error_cm=err,
+                input_skating_cm_s=skate, truth=Problem(truth.x, setup.problem.free, truth.start))
 
 
 def cases(task: str, seconds: float) -> list[Case]:
@@ -168,7 +165,7 @@ def cases(task: str, seconds: float) -> list[Case]:
 def ablation(seconds: float) -> list[str]:
     lines = []
     for task in ("path", "denoise"):
-        rows = [["clip", "method", "windows", "time s", "fun start", "fun end", "error cm", "skating cm/s"]]
+        rows = [["clip", "method", "windows", "time s", "fun start", "fun end", "E(x)", "error cm", "skating cm/s"]]
         wins = {"fun": 0, "err": 0, "n": 0}
         for case in cases(task, seconds):
             runs: dict[str, MAPResult] = {}
@@ -184,12 +181,17 @@ def ablation(seconds: float) -> list[str]:
                     pso=None, max_iter=100_000, time_budget=budget))
             runs["Adam, same time"] = solve(case.objective, case.problem, SolverOptions(
                 pso=None, optimizer="adam", max_iter=100_000, time_budget=budget))
-            if case.input_error_cm is not None:
-                rows.append([case.clip, "noisy input", "", "", "", "", f"{case.input_error_cm:.2f}",
+            if case.truth is not None:
+                rows.append([case.clip, "noisy input", "", "", "", "", "", f"{case.input_error_cm:.2f}",
                              f"{case.input_skating_cm_s:.1f}"])
+                e_clean = energies_at(case.objective, case.truth, case.truth.x0)
+                e_start = energies_at(case.objective, case.problem, case.problem.x0)
+                rows += [[case.clip, "clean clip", "", "", "", "", f"{sum(e_clean.values()):.0f}", "0.00", ""],
+                         [case.clip, "start (filtered)", "", "", "", "", f"{sum(e_start.values()):.0f}", "", ""]]
             for label, r in runs.items():
+                e_end = sum(energies_at(case.objective, case.problem, r.x).values())
                 rows.append([case.clip, label, str(len(r.windows)), f"{r.timings['total']:.1f}",
-                             f"{r.fun_start:.0f}", f"{r.fun:.0f}", f"{case.error_cm(r):.2f}",
+                             f"{r.fun_start:.0f}", f"{r.fun:.0f}", f"{e_end:.0f}", f"{case.error_cm(r):.2f}",
                              f"{case.skating_cm_s(r):.1f}"])
             if task == "path":
                 pso, alone = runs["PSO+L-BFGS"], runs["L-BFGS, same time"]
@@ -199,6 +201,9 @@ def ablation(seconds: float) -> list[str]:
         title = (f"path following: seed = first second, path = the clip's next {seconds:g} s of root path; "
                  "error = mean root distance to the path" if task == "path" else
                  f"denoising: first {seconds:g} s, joints moved 3 cm RMS; error = MPJPE to the clean clip; "
+                 "E(x) = the objective at the point, each window with the log-std and contacts of the point "
+                 "itself (energies_at; fun start/end hold those of each window's start): the clean clip below a "
+                 "result means the search failed; "
                  "PSO: not applicable (no new frames to steer)")
         lines += [title, table(rows), ""]
         if task == "path":

@@ -55,9 +55,11 @@ from motionopt.metrics import foot_skating, jerk, l2p, l2q, npss  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
 from motionopt.noise import position_noise  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
-from motionopt.solver import SolverOptions  # noqa: E402
+from motionopt.solver import Problem, SolverOptions  # noqa: E402
+from motionopt.solver.diagnostics import energies_at  # noqa: E402
 from priors.checkpoint import load_prior  # noqa: E402
 from priors.heldout import held_out_clips  # noqa: E402
+from problems.common import prepare  # noqa: E402
 from problems.denoise import Denoise  # noqa: E402
 from problems.edit import JointTarget, SpatialEdit  # noqa: E402
 from problems.inbetween import Inbetween, complete  # noqa: E402
@@ -177,9 +179,10 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
     variants = {"ours (per-joint low-pass)": {},
                 "ours + foot IK": {"clean_feet": True},
                 "ours + MAP refine": {"refine": True}}
-    rows = []
+    rows, energy_rows = [], []
     for level in (0.01, 0.03, 0.05):
         clean, noisy, sig = [], [], []
+        energies: dict[str, dict[str, float]] = {"clean": {}, "start": {}, "result": {}}
         outs: dict[str, list[np.ndarray]] = {k: [] for k in variants}
         secs = dict.fromkeys(variants, 0.0)
         for i, (_, m) in enumerate(clips):
@@ -188,10 +191,13 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
             clean.append(c.positions())
             noisy.append(nz.positions())
             for label, kwargs in variants.items():
+                task = Denoise(nz, prior, options=SolverOptions(pso=None, max_iter=iters), **kwargs)
                 t0 = time.perf_counter()
-                r = Denoise(nz, prior, options=SolverOptions(pso=None, max_iter=iters), **kwargs).solve()
+                r = task.solve()
                 secs[label] += time.perf_counter() - t0
                 outs[label].append(r.model_motion.positions())
+                if r.solver is not None:
+                    add_energies(energies, task, c, r.solver)
             sig.append((s, r.settings["sigma_angle"]))
         bw = best_filter(noisy, clean, lambda: butterworth(fps))
         sg = best_filter(noisy, clean, savgol)
@@ -211,8 +217,27 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
                  for label in variants]
         lines.append(f"   {level * 100:g} cm: rotation noise s = {np.mean([a for a, _ in sig]):.4f} rad, "
                      f"estimated from the input {np.mean([b for _, b in sig]):.4f} rad")
+        for point, e in energies.items():
+            energy_rows.append([f"{level * 100:g} cm", point, *[e[k] for k in e], sum(e.values())])
     lines += format_table(["noise", "method", "setting", "MPJPE cm", "skate cm/s", "jerk m/s^3"], rows)
+    terms = list(energies["clean"])
+    lines += ["   MAP refine: objective terms (nats, summed over the clips and the solver's windows) at the clean clip, "
+              "at the start (the filtered input) and at the solver's result; the clean clip lower than the result "
+              "means the search fails, the result lower means the objective prefers the wrong answer"]
+    lines += format_table(["noise", "point", *terms, "total"], energy_rows)
     return lines
+
+
+def add_energies(energies: dict[str, dict[str, float]], task: Denoise, clean: Motion, result) -> None:
+    """Add the MAP objective's terms at the clean clip, the start and the result of one
+    denoising to ``energies``: each evaluated over the solver's windows (``energies_at``)."""
+    setup = task.setup()
+    truth = prepare(clean, task.prior)
+    points = {"clean": (truth.x, Problem(truth.x, setup.problem.free, truth.start)),
+              "start": (setup.problem.x0, setup.problem), "result": (result.x, setup.problem)}
+    for point, (x, problem) in points.items():
+        for k, v in energies_at(setup.objective, problem, x, task.options).items():
+            energies[point][k] = energies[point].get(k, 0.0) + v
 
 
 # ---- 3. in-betweening -----------------------------------------------------------------

@@ -256,19 +256,42 @@ class JointPositionTerm(Term):
 
 @dataclass
 class ContactTerm(Term):
-    """Feet that the prior says are on the ground do not slide and rest at their planted
-    height: horizontal speed with sigma ``sigma_speed`` (m/s), height error with sigma
-    ``sigma_height`` (m), weighted by the prior's contact probability."""
+    """Planted feet do not slide and rest at their planted height: horizontal speed with
+    sigma ``sigma_speed`` (m/s), height error with sigma ``sigma_height`` (m), on the
+    joint-frames whose contact weight (``WindowState.contacts``) is above ``threshold``.
+
+    A local solve takes the weights from ``labels`` at its start: the kinematics of the
+    motion itself, not the prior's contact head, which fed a noisy iterate calls a third
+    of the frames wrongly and brakes swinging feet."""
 
     joints: list[int]
     planted_height: np.ndarray
     sigma_speed: float = 0.05
     sigma_height: float = 0.02
     threshold: float = 0.5
+    #: A joint counts as planted within this height (m) of its planted height, moving
+    #: slower than ``label_speed`` (m/s) over ``label_frames`` frames (an average that
+    #: capture noise does not flip).
+    label_height: float = 0.05
+    label_speed: float = 0.5
+    label_frames: int = 5
     name: str = "contact"
 
     def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
         return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
+
+    @torch.no_grad()
+    def labels(self, state: WindowState) -> Tensor:
+        """Contact weights (T, C), 0 or 1, of a single window from its own kinematics."""
+        p = state.positions[..., self.joints, :]
+        k = min(self.label_frames, p.shape[-3])
+        pad = torch.cat((p[..., :1, :, :].expand(*p.shape[:-3], k // 2, *p.shape[-2:]), p,
+                         p[..., -1:, :, :].expand(*p.shape[:-3], k - 1 - k // 2, *p.shape[-2:])), dim=-3)
+        smooth = pad.unfold(-3, k, 1).mean(-1)                       # (..., lead+T, C, 3)
+        step = (smooth[..., 1:, :, [0, 2]] - smooth[..., :-1, :, [0, 2]]).norm(dim=-1) * state.fps
+        speed = torch.cat((step[..., :1, :], step), dim=-2)[..., state.lead:, :]
+        height = p[..., state.lead:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
+        return ((height < self.label_height) & (speed < self.label_speed)).to(p)
 
     def energy(self, state: WindowState) -> Tensor:
         p = state.positions[..., self.joints, :]
@@ -337,17 +360,19 @@ class MAPObjective:
         return [self.prior_term] + list(self.terms)
 
     def window_state(self, x: Tensor, frames: np.ndarray, context: Tensor, lead_raw: Tensor,
-                     start: RootStart, contacts: Tensor | None = None) -> WindowState:
+                     start: RootStart, contacts: Tensor | None = None, log_std: Tensor | None = None) -> WindowState:
         """Decode a (batch of) window(s) ``x (..., T, D)`` after ``context (C, D)``.
 
         ``lead_raw`` holds the last solved frames (unnormalised, (L, D)) before the
         window, decoded together with it from ``start`` (the state before them).
-        ``contacts (T, C)``, when given, replaces the prior's contact prediction: a local
-        solver fixes them so that the contact term does not jump between iterates.
+        ``contacts (T, C)``, when given, replaces the prior's contact prediction, and
+        ``log_std (T, P)`` the prior's predicted log-std: a local solve fixes both where it
+        starts, so that the contact term does not jump between iterates and the solver
+        cannot lower the prior term by making frames less certain.
         """
         norm = self.prior.normalizer
         floor = self._floor.to(x.dtype) if isinstance(self._floor, Tensor) else self._floor
-        nll, predicted = self.prior.nll_and_contacts(x, context, floor)
+        nll, predicted = self.prior.nll_and_contacts(x, context, floor, log_std)
         if context.shape[-2] == 0:
             # the sequence's first frame has no history: the prior has nothing to say about it
             nll = torch.cat((torch.zeros_like(nll[..., :1]), nll[..., 1:]), dim=-1)
@@ -358,6 +383,15 @@ class MAPObjective:
         if contacts is None:
             contacts = predicted.detach()
         return WindowState(frames, lead_raw.shape[0], x, rot, root, pos, contacts, nll, self.spec.fps)
+
+    def contact_weights(self, state: WindowState) -> Tensor:
+        """Which contact joints count as planted (T, C) in a window: by the contact term's
+        kinematic rule when the objective has one (``ContactTerm.labels``), else the
+        prior's prediction."""
+        for term in self.terms:
+            if isinstance(term, ContactTerm):
+                return term.labels(state)
+        return state.contacts
 
     def energies(self, state: WindowState) -> dict[str, Tensor]:
         """Every active term's energy (...,) for the window."""

@@ -53,14 +53,14 @@ def energies_at(objective: MAPObjective, problem: Problem, x: Tensor,
     """Every term's energy at the full feature sequence ``x (N, D)``, summed over the
     windows ``solve`` would use for ``problem`` (its free frames and root start) with
     ``options`` (window and overlap): each window opened on ``x`` as the solver opens
-    it, and evaluated at zero variables, contact weights predicted by the prior at ``x``.
-    Overlapping frames count once per window, as in ``MAPResult.terms``.
+    it and evaluated at zero variables, with the prior's log-std and the contact weights
+    of ``x`` itself. Overlapping frames count once per window, as in ``MAPResult.terms``.
 
-    At a solve's result this is not exactly its ``terms``: the solve weighs the contact
-    term with the contacts predicted where each window started, and writes the prior's
-    thresholded contact predictions into the contact features after each window (the
-    prior reads them as history); with overlapping windows, later windows also change
-    frames that earlier windows' terms were computed on."""
+    At a solve's result this is not its ``terms``: a local solve holds the log-std and
+    the contact weights of where it started; with overlapping windows, later windows
+    also change frames that earlier windows' terms were computed on. ``energies_at``
+    gives one definition for every point (the clean clip, the start, the result), which
+    is what tells a search failure from an objective that prefers the wrong answer."""
     x = x.float()
     free = np.asarray(problem.free, bool)
     if x.shape != (len(free), objective.spec.dim) or not bool(torch.isfinite(x).all()):
@@ -72,7 +72,7 @@ def energies_at(objective: MAPObjective, problem: Problem, x: Tensor,
         win = walk.open(x, s)
         if win.n_vars == 0:
             continue
-        win.rebase()
+        walk.rebase(win)
         for k, val in win.values(win.pack()).items():
             out[k] = out.get(k, 0.0) + val
     return out

@@ -66,7 +66,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
     for w_i, s in enumerate(starts):
         e = min(s + opts.window, n)
         win = walk.open(x, s)
-        context, free_local = win.context, win.free_np
+        free_local = win.free_np
         if win.n_vars == 0:
             continue
         # new frames: a rollout of the prior, steered by the particle swarm when enabled
@@ -92,7 +92,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
             win.x[first:] = torch.where(fill[:, None], roll, win.x[first:])
             x[s:e] = win.x
             known[s + first:e] = True
-        win.rebase()
+        walk.rebase(win)
         v0 = win.pack()
         t0 = time.perf_counter()
 
@@ -134,11 +134,11 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
         success &= ok
         if not ok:
             messages.append(f"window {w_i}: {msg}")
-        # write the window back, with contacts predicted by the prior
+        # write the window back, its contact features the weights the solve held (the prior
+        # reads them as history; it was trained on kinematic labels like them)
         with torch.no_grad():
             xw = win.unpack(torch.from_numpy(v).float())
-            _, probs = prior.nll_and_contacts(xw, context)
-        xw[:, p:] = torch.where(torch.from_numpy(free_local)[:, None], (probs > 0.5).float(), xw[:, p:])
+        xw[:, p:] = torch.where(torch.from_numpy(free_local)[:, None], (win.contacts > 0.5).float(), xw[:, p:])
         x[s:e] = xw
         for k, val in end_vals.items():
             terms_end[k] = terms_end.get(k, 0.0) + val

@@ -8,6 +8,7 @@ walks the sequence it is solving; ``diagnostics.energies_at`` walks a given one.
 from __future__ import annotations
 
 import numpy as np
+import torch
 from torch import Tensor
 
 from ..features import RootStart, advance
@@ -51,6 +52,7 @@ class WindowWalk:
         self.starts = free_window_starts(free, window, overlap)
         self._committed = 0          # the root state is known up to this frame
         self._root_state = start     # the state before frame `_committed`
+        self._contacts = torch.full((len(free), objective.spec.num_contacts), float("nan"))
 
     def open(self, x: Tensor, s: int) -> Window:
         """The window from frame ``s`` of the sequence ``x (N, D)``, conditioned on its frames before ``s``."""
@@ -64,3 +66,10 @@ class WindowWalk:
         lead_raw = norm.denormalize(x[self._committed:s].double()).float()
         context = x[max(0, s - obj.prior.receptive_field):s]
         return Window(obj, x[s:e], np.arange(s, e), self.free[s:e], context, lead_raw, self._root_state)
+
+    def rebase(self, win: Window) -> None:
+        """``win.rebase``, keeping the contact weights of frames an earlier window fixed,
+        and recording the weights of the others for the windows after it."""
+        rows = torch.from_numpy(win.frames)
+        win.rebase(self._contacts[rows])
+        self._contacts[rows] = win.contacts.to(self._contacts)
