@@ -15,6 +15,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import correlate1d
 from scipy.signal import butter, filtfilt, savgol_filter
+from threadpoolctl import threadpool_limits
 
 #: Frames at each end of a clip where a smoother's matrix differs from its interior.
 _EDGE = 256
@@ -60,9 +61,10 @@ def savitzky_golay(window: int, order: int) -> Smoother:
 def denoising_family(fps: float) -> tuple[Smoother, ...]:
     """Butterworth order 2 at 1-12 Hz and Savitzky-Golay filters of orders 2-5 over
     0.15-2 s: the candidates each joint chooses from. The mix beats either kind alone
-    on held-out clips at 1-5 cm of noise (bench/tasks.py)."""
+    on held-out clips at 1-5 cm of noise (bench/tasks.py). Windows step by 1/15 s (2
+    frames at 30 fps), so that a 120 fps clip has as many candidates as a 30 fps one."""
     lows = [butterworth(fc, fps) for fc in np.arange(1.0, 12.01, 0.5)]
-    windows = range(max(5, 2 * int(0.075 * fps) + 1), 2 * int(fps) + 2, 2)
+    windows = range(max(5, 2 * int(0.075 * fps) + 1), 2 * int(fps) + 2, 2 * max(1, round(fps / 30)))
     fits = [savitzky_golay(w, o) for w in windows for o in (2, 3, 4, 5) if o < w - 1]
     return tuple(lows + fits)
 
@@ -75,8 +77,9 @@ def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[
     usable = [s for s in family if n >= s.min_frames]
     if not usable:
         raise ValueError(f"no smoother of the family fits a clip of {n} frames")
-    risks = np.stack([((flat - s.apply(flat)) ** 2).reshape(n, groups, k).sum(axis=(0, 2))
-                      + 2 * sigma ** 2 * k * s.trace(n) for s in usable])
+    with threadpool_limits(1, user_api="blas"):  # many small fits: BLAS threads only spin
+        risks = np.stack([((flat - s.apply(flat)) ** 2).reshape(n, groups, k).sum(axis=(0, 2))
+                          + 2 * sigma ** 2 * k * s.trace(n) for s in usable])
     return [usable[i] for i in risks.argmin(axis=0)]
 
 

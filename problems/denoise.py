@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from motionopt import rotations as R
+from motionopt.features import to_file_motion
 from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
 from motionopt.smoothing import butterworth, denoising_family, least_risk
@@ -65,13 +67,29 @@ def low_pass(motion: Motion, cutoff_hz: float | None = None, angle_sigma: float 
     return motion.with_frames(out_q, root_smoother.apply(motion.root), motion.translations), chosen
 
 
+def with_change(motion: Motion, before: Motion, after: Motion) -> Motion:
+    """``motion`` (any skeleton and rate holding the prior's joints) with the change from
+    ``before`` to ``after`` (model motions at the prior's rate) added: each modelled
+    joint turned by its change in its own frame, the root moved by the root's change,
+    both resampled to ``motion``'s rate. Joints the prior does not model keep
+    ``motion``'s values; with ``after`` equal to ``before`` the result is ``motion``."""
+    a, b = to_file_motion(before, motion), to_file_motion(after, motion)
+    turn = R.quat_multiply(R.quat_conjugate(torch.from_numpy(a.rotations)), torch.from_numpy(b.rotations))
+    rot = R.quat_multiply(torch.from_numpy(motion.rotations), turn).numpy()
+    moved = None if motion.translations is None else (
+        motion.translations + b.local_translations() - a.local_translations())  # joints above the model root
+    return motion.with_frames(rot, motion.root + (b.root - a.root), moved)
+
+
 @dataclass
 class DenoiseSetup:
-    """A denoising's MAP solve before it runs: the noisy input and its filtered copy as
-    the prior sees them, the objective (fidelity to the input, prior, contacts), the
-    problem (every frame free, starting from the filtered copy) and the settings."""
+    """A denoising's MAP solve before it runs: the noisy input as the prior sees it, its
+    filtered copy (the file's joints and rate, and as the prior sees it), the objective
+    (fidelity to the input, prior, contacts), the problem (every frame free, starting
+    from the filtered copy) and the settings."""
 
     prep: Prepared
+    filtered: Motion
     start: Prepared
     objective: MAPObjective
     problem: Problem
@@ -129,15 +147,17 @@ class Denoise:
         est_angle, est_root = estimate_noise(prep.model) if n > 8 else (0.01, 0.01)
         sigma_angle = self.sigma_angle or max(est_angle, 1e-3)
         sigma_root = self.sigma_root or max(est_root, 1e-3)
-        smoothed, smoothers = low_pass(prep.model, self.cutoff_hz, sigma_angle, est_root)
-        start = prepare(smoothed, prior)
+        # every joint of the file at its own rate; the solver starts from its model-rate copy
+        filtered, smoothers = low_pass(self.motion, self.cutoff_hz, sigma_angle, est_root)
+        start = prepare(filtered, prior)
         fidelity = PoseFidelityTerm(prep.model.root, prep.model.rotations, sigma_root, sigma_angle, name="fidelity")
         objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, self.sigmas),
                                  prior_min_log_std=self.prior_min_log_std)
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
                     "refine": self.refine, "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
                     "smoothers": smoothers}
-        return DenoiseSetup(prep, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start), settings)
+        return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
+                            settings)
 
     def solve(self) -> TaskResult:
         prior = self.prior
@@ -152,6 +172,9 @@ class Denoise:
             model = start.codec.motion(x.double(), start.start, like=prep.original)
         if self.clean_feet:
             model = plant_feet(model, prior, x, prep.planted_height, slice(0, n), slow=0.0)
+        # the filtered file, plus what the prior changed
+        output = with_change(setup.filtered, start.model, model)
+        model = start.codec.model_motion(output)
         seconds = time.perf_counter() - t0
         fps = prior.spec.fps
         cidx = prior.spec.contact_indices()
@@ -164,7 +187,7 @@ class Denoise:
             "mean_change_cm": float((after - before).norm(dim=-1).mean() * 100),
             "frames_per_second": n / max(seconds, 1e-9),
         }
-        return TaskResult(prep.to_file(model), model, result, metrics, setup.settings)
+        return TaskResult(output, model, result, metrics, setup.settings)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

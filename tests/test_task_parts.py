@@ -18,7 +18,7 @@ from problems.edit import reach
 from problems.inbetween import velocity_handoff
 
 from priorkit import tiny_prior
-from clips import DATA
+from clips import CMU_120, DATA
 
 
 
@@ -133,3 +133,39 @@ def test_velocity_handoff_continues_the_kept_joint_velocities_then_leaves_the_pr
     after = int(np.ceil(0.25 * m.fps)) + 1
     assert np.allclose(np.abs((q[after:] * synth[after:]).sum(-1)), 1.0)
     assert not np.allclose(np.abs((q[1:after - 1] * synth[1:after - 1]).sum(-1)), 1.0)
+
+
+def test_denoise_cleans_every_joint_at_the_files_rate():
+    """A 120 fps clip with fingers comes back at 120 fps with every joint cleaned: the
+    joints the prior does not model (fingers, eyes) are filtered too, not copied noisy."""
+    from motionopt.noise import capture_noise
+    from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
+    from problems.denoise import Denoise
+
+    clean = bvh.load(DATA / CMU_120)
+    noisy = capture_noise(clean, np.radians(2.0), 0.01, seed=0)
+    out = Denoise(noisy, load_prior_cached(CHECKPOINT_DIR / "cmu-ccnet.pt")).solve().motion
+    assert out.fps == clean.fps and out.num_frames == clean.num_frames and out.skeleton.names == clean.skeleton.names
+    prior_joints = set(load_prior_cached(CHECKPOINT_DIR / "cmu-ccnet.pt").spec.joints)
+    others = [j for j, n in enumerate(clean.skeleton.names) if n not in prior_joints]
+    assert len(others) > 10
+    p, pn, po = clean.positions(), noisy.positions(), out.positions()
+
+    def err(a: np.ndarray, joints) -> float:
+        return float(np.linalg.norm(a[:, joints] - p[:, joints], axis=-1).mean())
+
+    assert err(po, others) < 0.6 * err(pn, others)
+    every = list(range(clean.skeleton.num_joints))
+    assert err(po, every) < 0.6 * err(pn, every)
+
+
+def test_a_change_from_the_prior_carries_over_to_the_files_skeleton_and_rate():
+    from problems.denoise import with_change
+
+    clip = bvh.load(DATA / CMU_120)
+    prior = tiny_prior()
+    model = to_model_motion(clip, prior.spec)
+    assert np.allclose(with_change(clip, model, model).rotations, clip.rotations, atol=1e-6)
+    raised = model.with_frames(model.rotations, model.root + np.array([0.0, 0.1, 0.0]))
+    moved = with_change(clip, model, raised)
+    assert np.allclose(moved.positions() - clip.positions(), [0.0, 0.1, 0.0], atol=1e-4)
