@@ -56,12 +56,19 @@ def test_every_task_entry_has_a_case_here():
 def test_each_task_runs_as_a_command_and_in_a_batch_alike(files, tmp_path, capsys, task, method):
     options = [o.format(**{k: str(v) for k, v in files.items()}) for o in CASES[task]]
     options += ["--method", method] if method == "latent" else []
-    report = tmp_path / "one.json"
-    rc = main([task, str(files["walk"]), *options, "--out", str(tmp_path / "one.bvh"), "--report", str(report)])
+    report, page = tmp_path / "one.json", tmp_path / "one.html"
+    rc = main([task, str(files["walk"]), *options, "--out", str(tmp_path / "one.bvh"), "--report", str(report),
+               "--view", str(page)])
     out, err = capsys.readouterr()
     assert rc == 0, err
+    html = page.read_text()  # the page of every task: input and output, the task's targets, its measures
+    assert '"name":"input"' in html and '"name":"output"' in html and "foot skating" in html
+    assert ("prior NLL per frame" in html) == (method == "ar")
+    assert ('"name":"target path"' in html) == (task == "path-follow")
+    assert ('"name":"targets"' in html) == (task == "edit")
     said = [line.strip() for line in out.splitlines() if line.startswith("  ")]
     one = json.loads(report.read_text())
+    assert one["view"] == str(page)
     assert said and not any(key in out for key in one["metrics"])  # sentences, not metric names
     # only a gap before a kept frame has a join to tell of (prefix completion has none)
     joins = any(line.startswith("gaps meet the kept frames") for line in said)

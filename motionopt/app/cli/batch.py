@@ -48,6 +48,9 @@ def check_task_options(task: str, options: list[str]) -> None:
     for word in options:
         if word.split("=")[0] in RESERVED:
             raise UserError(f"{word} is set by the batch for each file; leave it out of the task options")
+        if word.split("=")[0] == "--view":
+            raise UserError("--view writes one page, and a batch runs many files: leave it out, and view an output "
+                            "afterwards with `motionopt view INPUT.bvh OUTPUT.bvh --out VIEW.html --overlay`")
     try:
         build_parser().parse_args([task, "INPUT.bvh", "--out", "OUT.bvh", *options])
     except SystemExit as e:

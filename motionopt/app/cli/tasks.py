@@ -6,8 +6,8 @@ arguments become a task object of ``problems/`` (the latent prior's ``LatentTask
 ``start`` checks all inputs and outputs before solving, so that a mistake costs no time
 and writes nothing, and builds the task; ``solve`` runs it with a progress bar over the
 solver's windows; ``write_result`` writes the BVH with ``bvh.save`` (atomic), the optional
-picture (``--plot``) and JSON report (``--report``); the command prints the task's own
-summary (``task.summary(result)``).
+picture (``--plot``), interactive page (``--view``) and JSON report (``--report``); the
+command prints the task's own summary (``task.summary(result)``).
 
 Adding a task: its module in ``problems/`` (a class with ``options``, ``solve()`` and
 ``summary(result)``) and one entry in ``TASKS``.
@@ -43,10 +43,11 @@ POSITIONAL = ("input",)
 
 
 class Task(Protocol):
-    """What the commands need of a task object: solver settings to adjust, a solve, and
-    sentences about its result."""
+    """What the commands need of a task object: solver settings to adjust, its prior, a
+    solve, and sentences about its result."""
 
     options: Any
+    prior: Any
 
     def solve(self) -> Any: ...
 
@@ -114,6 +115,54 @@ def _foot_trajectory(task: Task, motion: Motion, result, out: Path) -> None:
                                  out, force=True)
 
 
+# ---- pages (--view) ------------------------------------------------------------------------------
+
+def _no_marks(task: Task, motion: Motion) -> dict:
+    """No target to draw on the page."""
+    return {}
+
+
+def _target_points(task: Task, motion: Motion) -> dict:
+    """The spatial edit's targets as points on the page: each target's position at each
+    of its frames (an offset target moves from where the input's joint is)."""
+    import numpy as np
+
+    pos = motion.positions()
+    points = [np.asarray(t.position) if t.position is not None else pos[f, motion.skeleton.index(t.joint)] + t.offset
+              for t in task.targets for f in range(t.frames[0], t.frames[1] + 1)]
+    return {"points": np.unique(np.array(points), axis=0)}
+
+
+def nll_curve(prior, motion: Motion, label: str):
+    """The autoregressive prior's NLL of each frame of ``motion`` after its first, on the
+    prior's joints and frame rate (``Codec``), as a page curve."""
+    import numpy as np
+    import torch
+
+    from motionopt.codec import Codec
+    from motionopt.view import Curve
+
+    codec = Codec.of(prior)
+    x = codec.features(codec.model_motion(motion))
+    with torch.no_grad():
+        nll = prior.nll(x[1:], x[:1]).numpy()
+    return Curve("prior NLL per frame", label, np.arange(1, len(x)) / prior.spec.fps, nll)
+
+
+def write_view_page(run: TaskRun, result, out: Path) -> None:
+    """The --view page: input and output overlaid, the task's targets (``TaskEntry.marks``),
+    and per-frame curves of hip height, foot skating, the distance to a target path and,
+    with an autoregressive prior, the prior's NLL of each."""
+    from motionopt.prior import MotionPrior
+    from motionopt.view import write_view
+
+    clips = {"input": run.motion, "output": result.motion}
+    prior = run.task.prior
+    curves = [nll_curve(prior, m, label) for label, m in clips.items()] if isinstance(prior, MotionPrior) else []
+    write_view(out, clips, overlay=True, curves=curves, title=f"{run.args.command}: {run.args.input} -> {run.outs.bvh}",
+               force=True, **run.entry.marks(run.task, run.motion))
+
+
 # ---- the task entries ------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -126,8 +175,10 @@ class TaskEntry:
     command offers ``--method`` only to say why latent is not available; neither: no
     ``--method``. ``read(args, motion)`` checks the command's own inputs and reads its
     files once the input is loaded, before the prior is; what it returns is ``inputs``.
-    ``draw(task, motion, result, path)`` draws the ``--plot`` picture. ``new_frames``: the
-    task synthesises frames (where the particle swarm works)."""
+    ``draw(task, motion, result, path)`` draws the ``--plot`` picture; ``marks(task, motion)``
+    gives what the ``--view`` page draws of the task (``path`` or ``points`` of
+    ``motionopt.view.write_view``). ``new_frames``: the task synthesises frames (where the
+    particle swarm works)."""
 
     help: str
     description: str
@@ -137,6 +188,7 @@ class TaskEntry:
     latent_refused: str | None = None
     read: Callable[[argparse.Namespace, Motion], Any] = lambda args, motion: None
     draw: Callable[[Task, Motion, Any, Path], None] = _filmstrip
+    marks: Callable[[Task, Motion], dict] = _no_marks
     new_frames: bool = True
 
     @property
@@ -186,7 +238,7 @@ TASKS: dict[str, TaskEntry] = {
         build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
             seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine,
             path_name=a.path),
-        draw=_root_paths),
+        draw=_root_paths, marks=lambda task, motion: {"path": task.path}),
     "denoise": TaskEntry(
         help="clean captured motion: remove jitter, foot sliding and ground penetration",
         description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
@@ -239,7 +291,7 @@ TASKS: dict[str, TaskEntry] = {
                                                                              refine=a.refine),
         latent_refused="spatial edits with the latent prior are not available (problems/latent.py has no spatial "
         "edit); use --method ar, the default",
-        new_frames=False),
+        marks=_target_points, new_frames=False),
 }
 
 
@@ -263,7 +315,11 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     io.add_argument("--report", default=None, metavar="REPORT.json",
                     help="write the solver's per-term values, the task's metrics, timings and the command")
     io.add_argument("--plot", action="store_true", help="also draw a picture: OUT.png next to OUT.bvh")
-    io.add_argument("--force", action="store_true", help="overwrite OUT, REPORT and the picture if they exist")
+    io.add_argument("--view", default=None, metavar="VIEW.html",
+                    help="also write an interactive 3-D page of input and output, with the task's targets and "
+                    "per-frame curves of its measures (open it in a web browser; it works offline)")
+    io.add_argument("--force", action="store_true",
+                    help="overwrite OUT, REPORT, the picture and the page if they exist")
     io.add_argument("--fps", type=_positive(float), default=None, help="override the input file's frame rate")
     io.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
                     help="length unit of the input file (default: guessed from the skeleton's size)")
@@ -305,11 +361,12 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
 
 @dataclass
 class Outputs:
-    """Where a command writes: the BVH, and the optional report and picture."""
+    """Where a command writes: the BVH, and the optional report, picture and page."""
 
     bvh: Path
     report: Path | None
     picture: Path | None
+    view: Path | None
 
 
 @dataclass
@@ -366,15 +423,18 @@ def check_outputs(args: argparse.Namespace) -> Outputs:
     report = Path(args.report) if args.report else None
     if report is not None and report.suffix.lower() != ".json":
         raise UserError(f"--report {report}: the report must be a .json file")
+    view = Path(args.view) if args.view else None
+    if view is not None and view.suffix.lower() != ".html":
+        raise UserError(f"--view {view}: the page must be an .html file")
     picture = out.with_suffix(".png") if args.plot else None
-    for path in filter(None, (out, report, picture)):
+    for path in filter(None, (out, report, picture, view)):
         if Path(args.input).resolve() == path.resolve():
             raise UserError(f"{path} is the input file; write the result to another file")
         if not path.parent.exists():
             raise UserError(f"folder {path.parent} does not exist; create it first")
         if path.exists() and not args.force:
             raise UserError(f"{path} exists; pass --force to overwrite it")
-    return Outputs(out, report, picture)
+    return Outputs(out, report, picture, view)
 
 
 def load_input(args: argparse.Namespace):
@@ -516,8 +576,8 @@ def solve(run: TaskRun, progress: WindowProgress | None = None):
 
 
 def write_result(run: TaskRun, result) -> dict:
-    """Write the solved task's BVH, then its picture and report where asked for; return the
-    report (also when it is not written). The one writer of a result, for the commands and
+    """Write the solved task's BVH, then its picture, page and report where asked for; return
+    the report (also when it is not written). The one writer of a result, for the commands and
     the batch."""
     from motionopt import bvh
 
@@ -526,9 +586,12 @@ def write_result(run: TaskRun, result) -> dict:
     seconds = time.perf_counter() - run.started
     if outs.picture is not None:
         run.entry.draw(run.task, run.motion, result, outs.picture)
+    if outs.view is not None:
+        write_view_page(run, result, outs.view)
     report = {"command": command_line(args, run.prior_path), "task": args.command, "method": _method(args),
               "input": str(args.input), "output": str(outs.bvh),
-              "picture": str(outs.picture) if outs.picture else None, "prior": str(run.prior_path),
+              "picture": str(outs.picture) if outs.picture else None,
+              "view": str(outs.view) if outs.view else None, "prior": str(run.prior_path),
               "input_frames": run.motion.num_frames, "input_fps": run.motion.fps, "seconds": seconds,
               **result.report()}
     if outs.report is not None:
@@ -560,6 +623,6 @@ def cmd_task(args: argparse.Namespace) -> int:
           f"(input {run.motion.num_frames}) in {report['seconds']:.1f} s")
     for line in lines:
         print(f"  {line}")
-    for path in filter(None, (run.outs.picture, run.outs.report)):
+    for path in filter(None, (run.outs.picture, run.outs.view, run.outs.report)):
         print(f"wrote {path}")
     return 0

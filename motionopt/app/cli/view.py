@@ -1,4 +1,5 @@
-"""Commands that draw motions: ``render`` (animated stick figure) and ``plot`` (pictures)."""
+"""Commands that draw motions: ``render`` (animated stick figure), ``plot`` (pictures) and
+``view`` (an interactive 3-D page)."""
 from __future__ import annotations
 
 import argparse
@@ -39,17 +40,37 @@ def register(sub) -> None:
     p.add_argument("--frames", type=int, default=6, help="stick figures per row for --kind filmstrip (default 6)")
     p.add_argument("--elevation", type=float, default=0.0,
                    help="degrees the filmstrip camera looks down (default 0: side view)")
-    p.add_argument("--labels", default=None, help="comma-separated names for the inputs (default: file names)")
-    p.add_argument("--title", default=None, help="picture title")
-    _add_frame_range(p)
-    _add_input_options(p)
-    add_common(p)
+    _add_labelled_inputs_options(p, "picture title")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("view", help="write an interactive 3-D page of BVH clips (HTML that works offline)",
+                       description="Write one self-contained HTML page (open it in a browser; no network needed) "
+                       "that plays the clips as 3-D skeletons on the floor, side by side or overlaid, with play "
+                       "and pause, a frame slider, orbit and zoom, planted feet marked, and under them per-frame "
+                       "curves of hip height and foot skating. Clips are shown at most at 30 frames per second; "
+                       "open the page at #frame=N to start at its frame N.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH files (several are shown together)")
+    p.add_argument("--out", required=True, help="HTML file to write")
+    p.add_argument("--overlay", action="store_true",
+                   help="draw the clips where they are, over each other (default: side by side along x)")
+    _add_labelled_inputs_options(p, "page title (default: the labels)")
+    p.set_defaults(func=cmd_view)
 
 
 def _add_frame_range(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=int, default=0, help="first frame to use (the file's numbering, from 0)")
     p.add_argument("--stop", type=int, default=None, help="frame to stop before (default: the end of the clip)")
+
+
+def _add_labelled_inputs_options(p: argparse.ArgumentParser, title: str) -> None:
+    """The options of a command that draws several labelled inputs (``_labelled``):
+    --labels, --title (``title``: its help), the frame range, the input options and the
+    common ones."""
+    p.add_argument("--labels", default=None, help="comma-separated names for the inputs (default: file names)")
+    p.add_argument("--title", default=None, help=title)
+    _add_frame_range(p)
+    _add_input_options(p)
+    add_common(p)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -89,10 +110,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
     from motionopt.features import default_spec
 
     out = plot.check_output(args.out, (".png",), args.force)
-    labels = [x.strip() for x in args.labels.split(",")] if args.labels else _names(args.inputs)
-    if len(labels) != len(args.inputs):
-        raise UserError(f"--labels gives {len(labels)} names for {len(args.inputs)} inputs")
-    motions = {label: _load(path, args) for label, path in zip(labels, args.inputs)}
+    motions = _labelled(args)
     if args.kind == "filmstrip":
         plot.plot_filmstrip(motions, out, frames=args.frames, elevation=args.elevation, first_frame=args.start,
                             title=args.title, force=args.force)
@@ -113,6 +131,31 @@ def cmd_plot(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"wrote {out}")
     return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from motionopt.plot import check_output
+    from motionopt.view import write_view
+
+    out = check_output(args.out, (".html",), args.force)
+    motions = _labelled(args)
+    write_view(out, motions, overlay=args.overlay, title=args.title, force=args.force)
+    if not args.quiet:
+        seconds = max(m.duration for m in motions.values())
+        print(f"wrote {out} ({len(motions)} clip{'s' * (len(motions) > 1)}, {seconds:.2f} s, "
+              f"{out.stat().st_size / 1e6:.1f} MB): open it in a web browser")
+    return 0
+
+
+def _labelled(args: argparse.Namespace) -> dict:
+    """The inputs' motions (cut to --start/--stop) by their --labels or file names."""
+    labels = [x.strip() for x in args.labels.split(",")] if args.labels else _names(args.inputs)
+    if len(labels) != len(args.inputs):
+        raise UserError(f"--labels gives {len(labels)} names for {len(args.inputs)} inputs")
+    twice = next((label for i, label in enumerate(labels) if label in labels[:i]), None)
+    if twice is not None:
+        raise UserError(f"two inputs are named {twice!r}; give each its own name with --labels")
+    return {label: _load(path, args) for label, path in zip(labels, args.inputs)}
 
 
 def _names(paths: list[str]) -> list[str]:
