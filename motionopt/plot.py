@@ -403,7 +403,7 @@ def plot_joint_trajectories(tracks: Mapping[str, Track], joint: str | int, out: 
 
 def _pick_times(figs: Sequence[StickFigure], frames: int | Sequence[int]) -> np.ndarray:
     """Times (s) of the filmstrip's columns: ``frames`` evenly spread over the shortest
-    motion, or the given frame numbers of the first motion."""
+    motion, or the given frame numbers of the longest motion (the first of several as long)."""
     if isinstance(frames, int):
         if frames < 1:
             raise ValueError(f"a filmstrip needs at least one frame, got {frames}")
@@ -412,10 +412,11 @@ def _pick_times(figs: Sequence[StickFigure], frames: int | Sequence[int]) -> np.
     idx = np.asarray(list(frames), dtype=int)
     if len(idx) == 0:
         raise ValueError("a filmstrip needs at least one frame")
-    n = figs[0].num_frames
+    longest = max(figs, key=lambda f: (f.num_frames - 1) / f.fps)
+    n = longest.num_frames
     if idx.min() < 0 or idx.max() >= n:
         raise ValueError(f"filmstrip frames must lie in 0..{n - 1}, got {idx.min()}..{idx.max()}")
-    return idx / figs[0].fps
+    return idx / longest.fps
 
 
 def plot_filmstrip(rows: Mapping[str, Motion], out: str | Path, frames: int | Sequence[int] = 6,
@@ -423,8 +424,9 @@ def plot_filmstrip(rows: Mapping[str, Motion], out: str | Path, frames: int | Se
                    force: bool = False) -> Path:
     """Stick figures at selected moments side by side, one row per labelled motion (for
     example input and output), from one fixed camera, with the ground and planted feet
-    highlighted. ``frames`` is a count spread over the clip or frame numbers of the first
-    motion; ``first_frame`` is added to the frame numbers shown. Writes a PNG."""
+    highlighted. ``frames`` is a count spread over the shortest clip or frame numbers of the
+    longest (a shorter clip shows its last frame after its end); ``first_frame`` is added
+    to the frame numbers shown. Writes a PNG."""
     out = check_output(out, (".png",), force)
     if not rows:
         raise ValueError("give at least one motion to draw")

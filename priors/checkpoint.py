@@ -9,7 +9,7 @@ import functools
 import pickle
 import re
 import warnings
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +27,38 @@ SHIPPED = ("cmu-ccnet.pt", "bandai-locomotion-ccnet.pt")
 SHIPPED_LATENT = ("cmu-latent.pt", "bandai-latent.pt")
 
 
+@dataclass(frozen=True)
+class PriorKind:
+    """A kind of prior as users meet it: its name, its shipped checkpoints (in order of
+    preference) and the command that trains one."""
+
+    name: str
+    shipped: tuple[str, ...]
+    train_command: str
+
+
+#: The kinds of prior by the ``kind`` their checkpoints record (the class that loads them).
+KINDS = {"CCNetPrior": PriorKind("autoregressive", SHIPPED, "train-prior"),
+         "LatentPrior": PriorKind("latent (W+)", SHIPPED_LATENT, "train-latent")}
+
+
 class CheckpointError(ValueError):
-    """A checkpoint that cannot be used: missing, wrong version, wrong skeleton."""
+    """A checkpoint that cannot be used: missing, wrong version, wrong skeleton, wrong kind."""
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """The checkpoint a user names: the file ``path`` when it exists, else the shipped
+    checkpoint of that name (``cmu-ccnet.pt`` or ``cmu-ccnet``), else a CheckpointError
+    that lists the shipped ones."""
+    path = Path(path)
+    if path.exists():
+        return path
+    for name in (path.name, path.name + ".pt"):
+        if path.parent == Path(".") and (CHECKPOINT_DIR / name).is_file():
+            return CHECKPOINT_DIR / name
+    names = ", ".join(p.name for p in shipped_checkpoints(SHIPPED + SHIPPED_LATENT))
+    raise CheckpointError(f"checkpoint {path} does not exist; name a file, or a shipped checkpoint: {names} "
+                          "(`motionopt prior-info --list` describes them)")
 
 
 def skeleton_to_dict(sk: Skeleton) -> dict:
@@ -274,6 +304,7 @@ def _load_prior_once(path: str, size: int, mtime_ns: int):
 
 
 def shipped_checkpoints(names: tuple[str, ...] = SHIPPED) -> list[Path]:
+    """The paths of the shipped checkpoints ``names`` that are present."""
     return [CHECKPOINT_DIR / n for n in names if (CHECKPOINT_DIR / n).exists()]
 
 
@@ -285,6 +316,31 @@ def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "
             f"{path} models a skeleton with joints {', '.join(spec.joints[:4])}, ...; the motion lacks "
             f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}. Use a prior trained on this "
             "skeleton (`motionopt train-prior --data YOUR_BVH_FOLDER`).")
+
+
+def load_prior_of_kind(skeleton: Skeleton, path: str | Path | None, kind: str, needed_by: str,
+                       otherwise: str = ""):
+    """The prior a command uses, and its path: the checkpoint ``path`` names (a file or a
+    shipped checkpoint's name), or the first shipped one of ``kind`` (a key of ``KINDS``)
+    whose modelled joints the skeleton has. A checkpoint of another kind is refused with a
+    message saying what ``needed_by`` (the command, for the message) needs, which
+    checkpoints are of that kind and, when given, ``otherwise`` (how to use the one given);
+    a skeleton the prior does not model, by ``check_compatible``."""
+    want = KINDS[kind]
+    path = resolve_checkpoint(path) if path else find_prior_for(skeleton, want.shipped, want.train_command)
+    prior = load_prior_cached(path)
+    got = type(prior).__name__
+    if got != kind:
+        raise CheckpointError(f"{path} is {_a(KINDS[got].name)} prior; {needed_by} needs {_a(want.name)} prior: "
+                              f"a shipped one ({', '.join(want.shipped)}) or one trained with "
+                              f"`motionopt {want.train_command}`{'; ' + otherwise if otherwise else ''}")
+    check_compatible(prior.spec, skeleton, path)
+    return prior, Path(path)
+
+
+def _a(word: str) -> str:
+    """``word`` with its indefinite article."""
+    return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
 
 
 def find_prior_for(skeleton: Skeleton, names: tuple[str, ...] = SHIPPED,

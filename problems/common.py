@@ -11,6 +11,7 @@ import torch
 
 from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
+from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
@@ -22,8 +23,6 @@ log = logging.getLogger(__name__)
 MAX_FILE_BYTES = 50 * 2**20
 #: Largest coordinate (metres) a user file may give: farther than 10 km is a unit mistake, not a motion.
 MAX_COORDINATE = 1e4
-#: Faster than this (m/s) is beyond what a person does: a fast run (sprinters peak near 10 m/s, briefly).
-MAX_HUMAN_SPEED = 8.0
 
 
 def read_text(path: Path, what: str, limit: int = MAX_FILE_BYTES) -> str:

@@ -22,7 +22,7 @@ from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_an
 from motionopt.solver import InversionOptions, InversionResult, blend, invert
 from motionopt.motion import Motion
 from motionopt.smoothing import local_linear
-from priors.checkpoint import SHIPPED_LATENT, CheckpointError, check_compatible, find_prior_for, load_prior_cached
+from priors.checkpoint import load_prior_of_kind
 from priors.latent import LatentPrior
 from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
 
@@ -31,14 +31,9 @@ from .inbetween import check_ranges
 
 
 def load_latent_for(motion: Motion, path: str | None = None) -> LatentPrior:
-    """The named latent checkpoint, or the shipped one whose skeleton matches the motion."""
-    path = path or find_prior_for(motion.skeleton, SHIPPED_LATENT, "train-latent")
-    prior = load_prior_cached(path)
-    if not isinstance(prior, LatentPrior):
-        raise CheckpointError(f"{path} holds a {type(prior).__name__}, not a latent prior; "
-                              "train one with `motionopt train-latent`")
-    check_compatible(prior.spec, motion.skeleton, path)
-    return prior
+    """The named latent checkpoint (a file or a shipped checkpoint's name), or the shipped
+    one whose skeleton matches the motion."""
+    return load_prior_of_kind(motion.skeleton, path, "LatentPrior", "a latent task")[0]
 
 
 class FidelityTerm:

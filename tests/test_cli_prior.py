@@ -104,6 +104,42 @@ def test_score_picks_the_shipped_prior_of_the_skeleton(capsys, clip, expected):
     assert report["frames"] == bvh.load(DATA / clip).num_frames
 
 
+@pytest.mark.parametrize("kind", ["latent", "ccnet"])
+def test_score_takes_a_shipped_prior_by_name_and_says_which_kind_it_needs(capsys, kind):
+    name = f"cmu-{kind}.pt"
+    if not (CHECKPOINT_DIR / name).exists():
+        pytest.skip(f"needs the shipped {name}")
+    rc, out, err = run(capsys, "score", DATA / CMU_60, "--prior", name, "--json")
+    if kind == "ccnet":
+        assert rc == 0, err
+        assert json.loads(out)["prior"] == str(CHECKPOINT_DIR / name)
+        return
+    assert rc == 1 and out == ""
+    line, = err.strip().splitlines()
+    assert f"{name} is a latent (W+) prior; score needs an autoregressive prior" in line
+    assert "cmu-ccnet.pt, bandai-locomotion-ccnet.pt" in line and "train-prior" in line
+
+
+def test_prior_info_takes_a_shipped_checkpoint_by_name_and_lists_them(capsys):
+    if not (CHECKPOINT_DIR / "cmu-ccnet.pt").exists():
+        pytest.skip("needs the shipped cmu-ccnet.pt")
+    rc, out, err = run(capsys, "prior-info", "cmu-ccnet.pt", "--json")
+    assert rc == 0, err
+    assert json.loads(out)["kind"] == "CCNetPrior"
+    rc, out, err = run(capsys, "prior-info", "no-such.pt")
+    assert rc == 1 and "does not exist" in err and "cmu-ccnet.pt" in err and "--list" in err
+    rc, out, err = run(capsys, "prior-info", "--list", "--json")
+    assert rc == 0, err
+    listed = {r["name"]: r for r in json.loads(out)}
+    shipped = [p.name for p in CHECKPOINT_DIR.glob("*.pt")]
+    assert set(listed) == set(shipped)
+    assert listed["cmu-ccnet.pt"]["kind"] == "autoregressive" and listed["cmu-ccnet.pt"]["fps"] == 30.0
+    assert listed["cmu-latent.pt"]["kind"] == "latent (W+)" and listed["cmu-latent.pt"]["megabytes"] > 0
+    rc, out, err = run(capsys, "prior-info", "--list")
+    assert rc == 0 and out.split()[:5] == ["name", "kind", "skeleton", "fps", "size"]
+    assert all(name in out for name in shipped)
+
+
 def test_prior_info_prints_licence_and_metadata(capsys, ckpt):
     rc, out, _ = run(capsys, "prior-info", ckpt)
     assert rc == 0

@@ -5,6 +5,7 @@ nothing."""
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -125,6 +126,32 @@ def test_path_follow_refuses_a_path_in_centimetres_before_synthesis(capsys, clip
                           "--seconds", 0.3, "--report", tmp_path / "r.json", *TINY)
     assert rc == 0, err
     assert json.loads((tmp_path / "r.json").read_text())["metrics"]["path_distance_cm_mean"] < 20
+
+
+def test_a_task_warns_once_when_the_speeds_say_the_header_rate_is_wrong(caplog, tmp_path):
+    needs("cmu-ccnet.pt")
+    from dataclasses import replace
+
+    from motionopt.app.cli import build_parser
+    from motionopt.app.cli.tasks import start
+    from motionopt.info import frame_rate_doubt
+
+    for name in (CMU_120, CMU_60, BANDAI_30):  # generated clips at their true rates
+        assert frame_rate_doubt(bvh.load(DATA / name), name) is None
+    # a brisk 30 fps clip (the 4 s CMU clip played three times as fast), its header saying 120 fps
+    brisk = bvh.load(SALSA).resample(10.0)
+    assert frame_rate_doubt(replace(brisk, fps=30.0), "brisk.bvh") is None
+    clip = bvh.save(replace(brisk, fps=120.0), tmp_path / "brisk.bvh")
+    said = {}
+    for extra in ((), ("--fps", "30")):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="motionopt"):
+            start(build_parser().parse_args(["denoise", str(clip), "--out", str(tmp_path / "out.bvh"), *extra]))
+        said[extra] = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    text, = said[()]
+    assert text.startswith(f"{clip}: at the 120 fps its header gives, its limbs move at ")
+    assert "faster than a person" in text and text.endswith("pass the true one with --fps (e.g. --fps 30)")
+    assert said[("--fps", "30")] == [] and not (tmp_path / "out.bvh").exists()
 
 
 def test_denoise_reduces_jitter_and_tells_what_it_does(capsys, clips, tmp_path):
@@ -312,13 +339,25 @@ def test_read_path_csv_columns_times_and_line_numbers(tmp_path):
             read_path_csv(p)
 
 
+#: The options the README says every task takes.
+COMMON = ("--prior", "--seed", "--report", "--plot", "--force", "--fps", "--unit", "--quiet", "--verbose")
+
+
+@pytest.mark.parametrize("command", ("fuse", "latent-edit", "vary", "interpolate"))
+def test_the_latent_commands_take_the_common_options(capsys, command):
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert [option for option in COMMON if option not in text] == []
+
+
 @pytest.mark.parametrize("command", COMMANDS)
 def test_help_names_every_common_option(capsys, command):
     with pytest.raises(SystemExit) as e:
         main([command, "--help"])
     assert e.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
-    for option in ("--out", "--prior", "--seed", "--report", "--quiet", "--verbose", "--plot", "--force", "--fps",
-                   "--unit", "--iterations", "--no-pso", "--pso-particles", "--pso-iterations", "--optimizer"):
+    for option in ("--out", *COMMON, "--iterations", "--no-pso", "--pso-particles", "--pso-iterations", "--optimizer"):
         assert option in text
     assert ("--method {ar,latent}" in text) == (command != "path-follow")

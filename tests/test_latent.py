@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -228,6 +229,33 @@ def test_commands_write_bvh(trained, tmp_path, capsys):
     assert len(list((tmp_path / "i").iterdir())) == 3
     assert main(["latent-edit", b, "--attribute", "nope", "--out", str(tmp_path / "x.bvh"), "--prior", ckpt]) == 1
     assert "unknown attribute" in capsys.readouterr().err
+
+
+def test_commands_take_the_common_task_options(trained, tmp_path, capsys):
+    import shlex
+
+    from motionopt.app.cli import build_parser
+
+    ckpt = str(trained[0])
+    a, b = (str(p) for p in cmu_clips())
+    runs = {"fuse": [a, b, "--at", "30", "--out", tmp_path / "f.bvh"],
+            "latent-edit": [b, "--attribute", "crouch", "--out", tmp_path / "e.bvh"],
+            "vary": [b, "--count", "2", "--out-dir", tmp_path / "v"],
+            "interpolate": [a, b, "--steps", "2", "--out-dir", tmp_path / "i"]}
+    for command, argv in runs.items():
+        report = tmp_path / f"{command}.json"
+        argv = [command, *map(str, argv), "--prior", ckpt, "--seed", "3", "--plot", "--report", str(report),
+                "--unit", "cm", "-q"]
+        assert main(argv) == 0, capsys.readouterr().err
+        rep = json.loads(report.read_text())
+        assert rep["task"] == command and rep["prior"] == ckpt and len(rep["outputs"]) == (2 if "--out-dir" in argv
+                                                                                             else 1)
+        for out in rep["outputs"]:
+            assert bvh.load(out["output"]).num_frames > 0
+            assert Path(out["picture"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        again = build_parser().parse_args(shlex.split(rep["command"])[1:])
+        assert again.command == command and again.seed == 3 and again.plot
+        assert main(argv) == 1 and "pass --force" in capsys.readouterr().err  # nothing is overwritten
 
 
 def test_config_rejects_bad_window():

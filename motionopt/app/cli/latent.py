@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
-from . import UserError, add_common
+from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
+from .tasks import (add_io_options, add_prior_options, check_paths, command_line, filmstrip, json_text, load_input,
+                    load_prior, report_output, write_json)
 
 
 def register(sub) -> None:
@@ -31,39 +34,43 @@ def register(sub) -> None:
 
     p = sub.add_parser("fuse", help="join two motions at a frame through the latent prior (MoDi fusion)",
                        description="Frames of A before --at, then frames of B from --at (B's root continues "
-                       "from A's), passed through the latent prior's encoder and generator.")
-    p.add_argument("a", help="BVH file whose start is kept")
-    p.add_argument("b", help="BVH file whose end is kept")
+                       "from A's), passed through the latent prior's encoder and generator. --plot draws A, B "
+                       "and the fused motion.")
+    p.add_argument("a", metavar="A.bvh", help="BVH file whose start is kept")
+    p.add_argument("b", metavar="B.bvh", help="BVH file whose end is kept")
     p.add_argument("--at", type=int, required=True, help="frame (of the files) where A hands over to B")
-    _inversion_args(p)
+    _task_options(p, "BVH file to write, on A's skeleton, unit and frame rate")
     p.set_defaults(func=cmd_fuse)
 
     p = sub.add_parser("latent-edit", help="strengthen or weaken an attribute by moving in the latent space",
                        description="Encode the motion into W+, move along the attribute's direction in W "
                        "(strength in standard deviations of W), generate. Attributes: gral (gradual right-arm "
                        "lift), root_speed, crouch, and style:NAME for priors trained on Bandai clips; "
-                       "`--attribute list` prints those of the prior.")
-    p.add_argument("input", help="BVH file")
+                       "`--attribute list` prints those of the prior. --plot draws input over output.")
+    p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--attribute", required=True, help="attribute name, or 'list'")
     p.add_argument("--strength", type=float, default=1.0, help="standard deviations of W along the direction")
-    _inversion_args(p, out_required=False)
+    _task_options(p, "BVH file to write (not needed with --attribute list)", out_required=False)
     p.set_defaults(func=cmd_edit)
 
-    p = sub.add_parser("vary", help="variations of a motion: random offsets around its latent code")
-    p.add_argument("input", help="BVH file")
+    p = sub.add_parser("vary", help="variations of a motion: random offsets around its latent code",
+                       description="Encode the motion into W+ and generate --count motions from random offsets "
+                       "around its code (--seed draws them), written as DIR/INPUT_var_00.bvh and on. --plot "
+                       "draws each against the input.")
+    p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--sigma", type=float, default=0.3, help="offset size in standard deviations of W (0.1-0.8)")
-    p.add_argument("--seed", type=int, default=0)
-    _inversion_args(p, out_dir=True)
+    _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
     p.set_defaults(func=cmd_vary)
 
-    p = sub.add_parser("interpolate", help="motions between two motions, by interpolating their latent codes")
-    p.add_argument("a", help="first BVH file")
-    p.add_argument("b", help="second BVH file (same skeleton)")
+    p = sub.add_parser("interpolate", help="motions between two motions, by interpolating their latent codes",
+                       description="Encode A and B into W+ and generate --steps motions between their codes, A "
+                       "and B included, written as DIR/A_to_B_00.bvh and on. --plot draws each against A and B.")
+    p.add_argument("a", metavar="A.bvh", help="first BVH file")
+    p.add_argument("b", metavar="B.bvh", help="second BVH file (same skeleton)")
     p.add_argument("--steps", type=int, default=5, help="number of motions, both ends included")
-    _inversion_args(p, out_dir=True)
+    _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
     p.set_defaults(func=cmd_interpolate)
-
 
 
 TINY = {"z_dim": 16, "w_dim": 16, "mapping_layers": 2, "channels": (32, 32, 24, 16, 16),
@@ -88,108 +95,136 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _inversion_args(p: argparse.ArgumentParser, out_dir: bool = False, out_required: bool = True) -> None:
-    if out_dir:
-        p.add_argument("--out-dir", required=True, help="folder for the output BVH files")
-    else:
-        p.add_argument("--out", required=out_required, help="output BVH file")
-    p.add_argument("--prior", default=None, help="latent checkpoint (default: the shipped one matching the skeleton)")
-    p.add_argument("--refine", type=int, default=0, metavar="ITERS",
+def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, out_required: bool = True) -> None:
+    """The options every task command takes (``tasks.add_io_options``, --prior, --seed),
+    then the latent inversion's own; ``out``: what --out (or --out-dir) holds."""
+    io = add_io_options(p, out, "write each output's inversion figures and timings, the prior and the command",
+                        out_dir=out_dir, out_required=out_required)
+    io.add_argument("--json", action="store_true", help="print the report as JSON")
+    s = p.add_argument_group("prior and inversion")
+    add_prior_options(s)
+    s.add_argument("--refine", type=int, default=0, metavar="ITERS",
                    help="L-BFGS iterations refining the encoder's code toward the input (default 0: encoder only)")
-    p.add_argument("--pso", type=int, default=0, metavar="ITERS", help="PSO iterations before refinement")
-    p.add_argument("--reg", type=float, default=0.05, help="weight keeping refined codes near the mapping's distribution")
-    p.add_argument("--fps", type=float, default=None, help="override the files' frame rate")
-    p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
-    add_common(p)
+    s.add_argument("--pso", type=int, default=0, metavar="ITERS", help="PSO iterations before refinement")
+    s.add_argument("--reg", type=float, default=0.05,
+                   help="weight keeping refined codes near the mapping's distribution")
 
 
 def _options(args: argparse.Namespace):
     from motionopt.solver import InversionOptions
 
-    return InversionOptions(refine_iters=args.refine, pso_iters=args.pso, reg_weight=args.reg)
+    return InversionOptions(refine_iters=args.refine, pso_iters=args.pso, reg_weight=args.reg, seed=args.seed)
 
 
-def _load(path: str, args: argparse.Namespace):
+@dataclass
+class LatentRun:
+    """A latent command checked and loaded: the names of its input arguments, their
+    motions, the prior and its path, where it writes (BVH files, their pictures with
+    --plot, the report), and when it started."""
+
+    args: argparse.Namespace
+    names: tuple[str, ...]
+    motions: list
+    prior: object
+    prior_path: Path
+    bvhs: list[Path]
+    pictures: list[Path]
+    report: Path | None
+    started: float
+
+
+def _start(args: argparse.Namespace, names: tuple[str, ...], stems: list[str]) -> LatentRun:
+    """Check every output before any work (``stems``: the names of the BVH files --out-dir
+    gets; else --out), then read the inputs ``names`` (argument names) and load the
+    latent prior, as the task commands do."""
+    started = time.perf_counter()
+    inputs = [getattr(args, n) for n in names]
+    new_folder = False
+    if hasattr(args, "out_dir"):
+        folder = Path(args.out_dir)
+        if not folder.parent.exists():
+            raise UserError(f"folder {folder.parent} does not exist; create it first")
+        new_folder = not folder.exists()  # made when the results are written
+        bvhs = [folder / f"{stem}.bvh" for stem in stems]
+    else:
+        bvhs = [Path(args.out)] if args.out else []
+        if bvhs and bvhs[0].suffix.lower() != ".bvh":
+            raise UserError(f"--out {bvhs[0]}: the output must be a .bvh file")
+    pictures = [b.with_suffix(".png") for b in bvhs] if args.plot else []
+    report = report_output(args)
+    check_paths([report] if new_folder else [*bvhs, *pictures, report], inputs, args.force)
+    motions = [load_input(args, path) for path in inputs]
+    prior, prior_path = load_prior(motions[0], args, "LatentPrior")
+    return LatentRun(args, names, motions, prior, prior_path, bvhs, pictures, report, started)
+
+
+def _finish(run: LatentRun, results: list, label: str) -> int:
+    """Write each result's BVH file and, with --plot, its filmstrip under the inputs (the
+    result labelled ``label``); then the report (--report, --json) and what was written."""
     from motionopt import bvh
 
-    return bvh.load(path, unit=args.unit, fps=args.fps)
-
-
-def _report(args: argparse.Namespace, results: list, paths: list[Path]) -> None:
+    args = run.args
+    if run.bvhs:
+        run.bvhs[0].parent.mkdir(exist_ok=True)
+    for result, path in zip(results, run.bvhs):
+        bvh.save(result.motion, path, force=args.force)
+    rows = {n.upper() if len(run.names) > 1 else n: m for n, m in zip(run.names, run.motions)}
+    for result, picture in zip(results, run.pictures):
+        filmstrip({**rows, label: result.motion}, picture)
+    outputs = [{"output": str(p), "picture": str(run.pictures[i]) if run.pictures else None, **r.report()}
+               for i, (r, p) in enumerate(zip(results, run.bvhs))]
+    if run.report is not None:
+        write_json(run.report, {"command": command_line(args, run.prior_path, run.names), "task": args.command,
+                                "inputs": [str(getattr(args, n)) for n in run.names], "prior": str(run.prior_path),
+                                "seconds": time.perf_counter() - run.started, "outputs": outputs})
     if args.json:
-        print(json.dumps([{"output": str(p), **r.report()} for r, p in zip(results, paths)], indent=2))
-        return
-    if args.quiet:
-        return
-    for r, p in zip(results, paths):
-        rep = r.report()
-        extra = "" if rep["objective"] is None else \
-            f", objective {rep['objective_start']:.4g} -> {rep['objective']:.4g} in {rep['nit']} iterations"
-        print(f"wrote {p} ({rep['frames']} frames at {rep['fps']:g} fps, {rep['windows']} windows, "
-              f"{rep['timings'].get('total', 0):.2f} s{extra})")
-
-
-def _save_all(args: argparse.Namespace, results: list, stem: str) -> list[Path]:
-    from motionopt import bvh
-
-    folder = Path(args.out_dir)
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = [folder / f"{stem}_{i:02d}.bvh" for i in range(len(results))]
-    existing = [p for p in paths if p.exists()]
-    if existing and not args.force:
-        raise FileExistsError(f"{existing[0]} exists; pass --force to overwrite")
-    for r, p in zip(results, paths):
-        bvh.save(r.motion, p, force=args.force)
-    return paths
+        print(json_text(outputs))
+    elif not args.quiet:
+        for out in outputs:
+            extra = "" if out["objective"] is None else \
+                f", objective {out['objective_start']:.4g} -> {out['objective']:.4g} in {out['nit']} iterations"
+            print(f"wrote {out['output']} ({out['frames']} frames at {out['fps']:g} fps, {out['windows']} windows, "
+                  f"{out['timings'].get('total', 0):.2f} s{extra})")
+        for path in filter(None, (*run.pictures, run.report)):
+            print(f"wrote {path}")
+    return 0
 
 
 def cmd_fuse(args: argparse.Namespace) -> int:
-    from motionopt import bvh
-    from problems.latent import fuse, load_latent_for
+    from problems.latent import fuse
 
-    a, b = _load(args.a, args), _load(args.b, args)
-    prior = load_latent_for(a, args.prior)
-    result = fuse(prior, a, b, args.at, _options(args))
-    bvh.save(result.motion, args.out, force=args.force)
-    _report(args, [result], [Path(args.out)])
-    return 0
+    run = _start(args, ("a", "b"), [])
+    a, b = run.motions
+    return _finish(run, [fuse(run.prior, a, b, args.at, _options(args))], "fused")
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
-    from motionopt import bvh
-    from problems.latent import directions, latent_edit, load_latent_for
+    from problems.latent import directions, latent_edit
 
-    motion = _load(args.input, args)
-    prior = load_latent_for(motion, args.prior)
+    if args.attribute != "list" and not args.out:
+        raise UserError("--out is required (or use --attribute list)")
+    run = _start(args, ("input",), [])
     if args.attribute == "list":
-        for name, d in sorted(directions(prior).items()):
+        for name, d in sorted(directions(run.prior).items()):
             print(f"{name:>24}: classifier accuracy {d.accuracy:.2f} ({d.source})")
         return 0
-    if not args.out:
-        raise UserError("--out is required (or use --attribute list)")
-    result = latent_edit(prior, motion, args.attribute, args.strength, _options(args))
-    bvh.save(result.motion, args.out, force=args.force)
-    _report(args, [result], [Path(args.out)])
-    return 0
+    result = latent_edit(run.prior, run.motions[0], args.attribute, args.strength, _options(args))
+    return _finish(run, [result], f"{args.attribute} {args.strength:+g}")
 
 
 def cmd_vary(args: argparse.Namespace) -> int:
-    from problems.latent import load_latent_for, vary
+    from problems.latent import vary
 
-    motion = _load(args.input, args)
-    prior = load_latent_for(motion, args.prior)
-    results = vary(prior, motion, args.count, args.sigma, args.seed, _options(args))
-    _report(args, results, _save_all(args, results, Path(args.input).stem + "_var"))
-    return 0
+    stem = Path(args.input).stem + "_var"
+    run = _start(args, ("input",), [f"{stem}_{i:02d}" for i in range(args.count)])
+    return _finish(run, vary(run.prior, run.motions[0], args.count, args.sigma, args.seed, _options(args)),
+                   "variation")
 
 
 def cmd_interpolate(args: argparse.Namespace) -> int:
-    from problems.latent import interpolate, load_latent_for
+    from problems.latent import interpolate
 
-    a, b = _load(args.a, args), _load(args.b, args)
-    prior = load_latent_for(a, args.prior)
-    results = interpolate(prior, a, b, args.steps, _options(args))
-    _report(args, results, _save_all(args, results, f"{Path(args.a).stem}_to_{Path(args.b).stem}"))
-    return 0
+    stem = f"{Path(args.a).stem}_to_{Path(args.b).stem}"
+    run = _start(args, ("a", "b"), [f"{stem}_{i:02d}" for i in range(args.steps)])
+    a, b = run.motions
+    return _finish(run, interpolate(run.prior, a, b, args.steps, _options(args)), "interpolated")

@@ -6,7 +6,7 @@ import json
 import shlex
 from pathlib import Path
 
-from . import add_common
+from . import UserError, add_common
 
 #: Defaults of the train-prior options that map onto ``TrainConfig`` and ``CCNetConfig``
 #: (written out so that the parser does not import torch).
@@ -46,15 +46,20 @@ def register(sub) -> None:
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("prior-info", help="print a prior checkpoint's metadata")
-    p.add_argument("checkpoint", help="checkpoint file (.pt)")
+    p = sub.add_parser("prior-info", help="print a prior checkpoint's metadata, or list the shipped ones",
+                       description="Print the metadata of a checkpoint (a file, or a shipped checkpoint by name, "
+                       "such as cmu-ccnet.pt); --list lists the shipped checkpoints.")
+    p.add_argument("checkpoint", nargs="?", help="checkpoint file (.pt) or a shipped checkpoint's name")
+    p.add_argument("--list", action="store_true",
+                   help="list the shipped checkpoints: name, kind, skeleton, frame rate, size")
     p.add_argument("--json", action="store_true", help="print JSON")
     add_common(p)
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("score", help="how natural a clip is under a prior (per-frame NLL, worst stretches)")
     p.add_argument("input", help="BVH file")
-    p.add_argument("--prior", default=None, help="checkpoint (default: the shipped one matching the skeleton)")
+    p.add_argument("--prior", default=None, help="autoregressive checkpoint, a file or a shipped checkpoint's name "
+                   "(default: the shipped one matching the skeleton)")
     p.add_argument("--fps", type=float, default=None, help="override the file's frame rate")
     p.add_argument("--unit", default="auto", help="length unit of the file: cm, m, mm, in or auto")
     p.add_argument("--json", action="store_true", help="print JSON (key nll_per_frame)")
@@ -144,9 +149,15 @@ def train_command(args: argparse.Namespace) -> str:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from priors.checkpoint import read_checkpoint
+    from priors.checkpoint import read_checkpoint, resolve_checkpoint
 
-    data = read_checkpoint(args.checkpoint)
+    if args.list:
+        if args.checkpoint:
+            raise UserError(f"--list lists the shipped checkpoints; drop {args.checkpoint} or --list")
+        return list_shipped(args)
+    if not args.checkpoint:
+        raise UserError("name a checkpoint (a file, or a shipped one such as cmu-ccnet.pt), or pass --list")
+    data = read_checkpoint(resolve_checkpoint(args.checkpoint))
     meta = data["metadata"]
     hist = meta.get("history", [])
     info = {
@@ -186,22 +197,35 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def load_prior_for(motion, path: str | None):
-    """The named prior, or the shipped one whose skeleton matches the motion; and its path."""
-    from priors.checkpoint import check_compatible, find_prior_for, load_prior_cached
+def list_shipped(args: argparse.Namespace) -> int:
+    """prior-info --list: each shipped checkpoint's name, kind, skeleton, frame rate and file size."""
+    from motionopt.table import format_table
+    from priors.checkpoint import CHECKPOINT_DIR, KINDS, SHIPPED, SHIPPED_LATENT, read_checkpoint, shipped_checkpoints
 
-    path = path or find_prior_for(motion.skeleton)
-    prior = load_prior_cached(path)
-    check_compatible(prior.spec, motion.skeleton, path)
-    return prior, Path(path)
+    rows = []
+    for path in shipped_checkpoints(SHIPPED + SHIPPED_LATENT):
+        data = read_checkpoint(path)
+        joints = data["spec"]["joints"]
+        rows.append({"name": path.name, "kind": KINDS[data["kind"]].name,
+                     "skeleton": f"{len(joints)} joints from {joints[0]} ({', '.join(joints[1:4])}, ...)",
+                     "fps": data["spec"]["fps"], "megabytes": path.stat().st_size / 2**20, "path": str(path)})
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    elif not args.quiet:
+        table = [[r["name"], r["kind"], r["skeleton"], f"{r['fps']:g}", f"{r['megabytes']:.1f} MB"] for r in rows]
+        print("\n".join(format_table(["name", "kind", "skeleton", "fps", "size"], table, indent=0)))
+        print(f"in {CHECKPOINT_DIR}; pass a name to --prior or prior-info")
+    return 0
 
 
 def cmd_score(args: argparse.Namespace) -> int:
     from motionopt import bvh
+    from priors.checkpoint import load_prior_of_kind
     from priors.score import score_motion
 
     motion = bvh.load(args.input, unit=args.unit, fps=args.fps)
-    prior, path = load_prior_for(motion, args.prior)
+    prior, path = load_prior_of_kind(motion.skeleton, args.prior, "CCNetPrior", "score",
+                                     "a latent prior gives no per-frame likelihood to score with")
     report = score_motion(prior, motion)
     if args.json:
         print(json.dumps({**report.to_dict(), "prior": str(path)}, indent=2))

@@ -87,16 +87,23 @@ def _problems() -> ModuleType:
 
 # ---- pictures (--plot) -----------------------------------------------------------------------------
 
-def _filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
-    """A filmstrip of output over input, six moments spread over the output."""
+def filmstrip(rows: dict[str, Motion], out: Path) -> None:
+    """A filmstrip of labelled motions, the inputs above the output (last), as the demo
+    draws them: six moments spread over the longest."""
     import numpy as np
 
     from motionopt import plot
 
-    n = result.motion.num_frames
+    n = max(rows.values(), key=lambda m: m.duration).num_frames
     frames = np.unique(np.linspace(0, n - 1, min(6, n)).round().astype(int)).tolist()
-    plot.plot_filmstrip({"output": result.motion, "input": motion}, out, frames=frames,
-                        title="Output (top) and input", force=True)
+    *above, below = rows
+    above = ", ".join(above)
+    plot.plot_filmstrip(rows, out, frames=frames, force=True, title=f"{above[:1].upper()}{above[1:]} (top) and {below}")
+
+
+def _filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
+    """A filmstrip of input over output."""
+    filmstrip({"input": motion, "output": result.motion}, out)
 
 
 def _root_paths(task: Task, seed: Motion, result, out: Path) -> None:
@@ -309,31 +316,17 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     it synthesises frames (where the particle swarm works)."""
     from motionopt.solver import OPTIMIZERS, PSOOptions, SolverOptions
 
-    io = p.add_argument_group("input and output")
-    io.add_argument("--out", required=True, metavar="OUT.bvh",
-                    help="BVH file to write, with the input's skeleton, channels, unit and frame rate")
-    io.add_argument("--report", default=None, metavar="REPORT.json",
-                    help="write the solver's per-term values, the task's metrics, timings and the command")
-    io.add_argument("--plot", action="store_true", help="also draw a picture: OUT.png next to OUT.bvh")
+    io = add_io_options(p, "BVH file to write, with the input's skeleton, channels, unit and frame rate",
+                        report="write the solver's per-term values, the task's metrics, timings and the command")
     io.add_argument("--view", default=None, metavar="VIEW.html",
                     help="also write an interactive 3-D page of input and output, with the task's targets and "
                     "per-frame curves of its measures (open it in a web browser; it works offline)")
-    io.add_argument("--force", action="store_true",
-                    help="overwrite OUT, REPORT, the picture and the page if they exist")
-    io.add_argument("--fps", type=_positive(float), default=None, help="override the input file's frame rate")
-    io.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
-                    help="length unit of the input file (default: guessed from the skeleton's size)")
-    io.add_argument("--max-frames", type=_positive(int), default=100_000, metavar="N",
-                    help="refuse an input that declares more frames than this, before reading them (default "
-                    "100000: 14 minutes at 120 fps)")
     s = p.add_argument_group("prior and solver")
     if method:
         s.add_argument("--method", choices=METHODS, default="ar",
                        help="ar: MAP optimisation under the autoregressive prior (default); latent: inversion "
                        "of the latent (W+) prior")
-    s.add_argument("--prior", default=None, metavar="CKPT",
-                   help="prior checkpoint (default: the shipped one matching the input's skeleton)")
-    s.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    add_prior_options(s)
     s.add_argument("--refine", action="store_true",
                    help="polish the result with the MAP solver (prior, task and contact terms; windows of "
                    "34 frames, L-BFGS); off by default because with the shipped priors it does not improve "
@@ -354,7 +347,41 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
                    help=f"particle swarm iterations (default {PSOOptions.iterations})" + (
                        "; with --method latent, swarm iterations over the latent code (default 0)"
                        if method else ""))
+
+
+def add_io_options(p: argparse.ArgumentParser, out: str, report: str, out_dir: bool = False,
+                   out_required: bool = True) -> argparse._ArgumentGroup:
+    """The input and output options of every task command, the latent ones too: --out
+    (``out``: what it holds; --out-dir for a command that writes several motions), --report
+    (``report``: what it holds), --plot, --force, --fps, --unit and --max-frames; returns
+    their group, for a command's own."""
+    io = p.add_argument_group("input and output")
+    if out_dir:
+        io.add_argument("--out-dir", required=True, metavar="DIR", help=out)
+    else:
+        io.add_argument("--out", required=out_required, metavar="OUT.bvh", help=out)
+    io.add_argument("--report", default=None, metavar="REPORT.json", help=report)
+    io.add_argument("--plot", action="store_true",
+                    help="also draw a picture next to each BVH file written (OUT.png next to OUT.bvh): a filmstrip "
+                    "of input over output, or the task's own picture")
+    io.add_argument("--force", action="store_true", help="overwrite the outputs if they exist")
+    io.add_argument("--fps", type=_positive(float), default=None,
+                    help="override the input file's frame rate (its header's Frame Time)")
+    io.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
+                    help="length unit of the input file (default: guessed from the skeleton's size)")
+    io.add_argument("--max-frames", type=_positive(int), default=100_000, metavar="N",
+                    help="refuse an input that declares more frames than this, before reading them (default "
+                    "100000: 14 minutes at 120 fps)")
     add_common(p)
+    return io
+
+
+def add_prior_options(group: argparse._ArgumentGroup) -> None:
+    """--prior and --seed, which every task command takes."""
+    group.add_argument("--prior", default=None, metavar="CKPT",
+                       help="prior checkpoint: a file, or a shipped checkpoint's name (`motionopt prior-info --list`); "
+                       "default: the shipped one matching the input's skeleton")
+    group.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
 
 
 # ---- the steps every task command takes (and the batch with it) -----------------------------------
@@ -399,12 +426,11 @@ def start(args: argparse.Namespace, progress: Callable[[dict], object] | None = 
         raise UserError("--clean-feet works with --method ar only")
     motion = load_input(args)
     inputs = entry.read(args, motion)
+    prior, prior_path = load_prior(motion, args, "LatentPrior" if latent else "CCNetPrior")
     if latent:
-        prior, prior_path = load_latent_prior(motion, args)
         task = entry.latent(args, inputs, motion, prior)
         task.options = latent_options(args, task.options)
     else:
-        prior, prior_path = load_ar_prior(motion, args)
         task = entry.build(args, inputs, motion, prior)
         task.options = solver_options(args, task.options, progress)
     return TaskRun(args, entry, outs, motion, prior_path, task, started)
@@ -420,53 +446,65 @@ def check_outputs(args: argparse.Namespace) -> Outputs:
     out = Path(args.out)
     if out.suffix.lower() != ".bvh":
         raise UserError(f"--out {out}: the output must be a .bvh file")
-    report = Path(args.report) if args.report else None
-    if report is not None and report.suffix.lower() != ".json":
-        raise UserError(f"--report {report}: the report must be a .json file")
+    report = report_output(args)
     view = Path(args.view) if args.view else None
     if view is not None and view.suffix.lower() != ".html":
         raise UserError(f"--view {view}: the page must be an .html file")
     picture = out.with_suffix(".png") if args.plot else None
-    for path in filter(None, (out, report, picture, view)):
-        if Path(args.input).resolve() == path.resolve():
-            raise UserError(f"{path} is the input file; write the result to another file")
-        if not path.parent.exists():
-            raise UserError(f"folder {path.parent} does not exist; create it first")
-        if path.exists() and not args.force:
-            raise UserError(f"{path} exists; pass --force to overwrite it")
+    check_paths([out, report, picture, view], [args.input], args.force)
     return Outputs(out, report, picture, view)
 
 
-def load_input(args: argparse.Namespace):
-    from motionopt import bvh
+def report_output(args: argparse.Namespace) -> Path | None:
+    """--report's path, a .json file, or None."""
+    report = Path(args.report) if args.report else None
+    if report is not None and report.suffix.lower() != ".json":
+        raise UserError(f"--report {report}: the report must be a .json file")
+    return report
 
-    motion = bvh.load(args.input, unit=args.unit, fps=args.fps, max_frames=args.max_frames)
-    _say(args, f"read {args.input}: {motion.num_frames} frames at {motion.fps:g} fps, "
+
+def check_paths(paths: list[Path | None], inputs: list[str], force: bool) -> None:
+    """Output ``paths`` (None: not written), checked before any work: none is an input, each
+    folder exists, each file is new unless ``force``."""
+    for path in filter(None, paths):
+        if any(Path(i).resolve() == path.resolve() for i in inputs):
+            raise UserError(f"{path} is an input file; write the result to another file")
+        if not path.parent.exists():
+            raise UserError(f"folder {path.parent} does not exist; create it first")
+        if path.exists() and not force:
+            raise UserError(f"{path} exists; pass --force to overwrite it")
+
+
+def load_input(args: argparse.Namespace, path: str | None = None) -> Motion:
+    """The input file ``path`` (default: the command's INPUT) read with --unit, --fps and
+    --max-frames; warns when its speeds say its header's frame rate is likely wrong
+    (``info.frame_rate_doubt``), unless --fps gives the rate."""
+    from motionopt import bvh
+    from motionopt.info import frame_rate_doubt
+
+    path = path or args.input
+    motion = bvh.load(path, unit=args.unit, fps=args.fps, max_frames=args.max_frames)
+    _say(args, f"read {path}: {motion.num_frames} frames at {motion.fps:g} fps, "
                f"{motion.skeleton.num_joints} joints, unit {motion.source_unit}")
+    doubt = None if args.fps else frame_rate_doubt(motion, str(path))
+    if doubt:
+        log.warning(doubt)
     return motion
 
 
-def load_ar_prior(motion, args: argparse.Namespace):
-    """The autoregressive prior for the motion (named or shipped), refusing a latent one; and its path."""
-    from priors.latent import LatentPrior
+def load_prior(motion, args: argparse.Namespace, kind: str):
+    """The prior of ``kind`` (a key of ``priors.checkpoint.KINDS``) for the motion: --prior
+    (a file or a shipped checkpoint's name) or the shipped one of that kind whose skeleton
+    matches; and its path. A checkpoint of the other kind is refused, saying which kind
+    the command needs and, where a task takes either, the --method that takes the other."""
+    from priors.checkpoint import KINDS, load_prior_of_kind
 
-    from .prior import load_prior_for
-
-    prior, path = load_prior_for(motion, args.prior)
-    if isinstance(prior, LatentPrior):
-        raise UserError(f"{path} is a latent prior; pass --method latent, or an autoregressive checkpoint")
-    _say(args, f"prior: {path} ({prior.spec.fps:g} fps, {len(prior.spec.joints)} joints)")
-    return prior, path
-
-
-def load_latent_prior(motion, args: argparse.Namespace):
-    """The latent prior for the motion (named or shipped); and its path."""
-    from priors.checkpoint import SHIPPED_LATENT, find_prior_for
-    from problems.latent import load_latent_for
-
-    path = Path(args.prior) if args.prior else find_prior_for(motion.skeleton, SHIPPED_LATENT, "train-latent")
-    prior = load_latent_for(motion, str(path))
-    _say(args, f"latent prior: {path} ({prior.spec.fps:g} fps, {len(prior.spec.joints)} joints)")
+    latent = kind == "LatentPrior"
+    either = args.command in TASKS and TASKS[args.command].latent is not None
+    needed_by = f"{args.command} --method latent" if latent and either else args.command
+    otherwise = f"{'drop' if latent else 'pass'} --method latent to use {args.prior}" if either else ""
+    prior, path = load_prior_of_kind(motion.skeleton, args.prior, kind, needed_by, otherwise)
+    _say(args, f"prior: {path} ({KINDS[kind].name}, {prior.spec.fps:g} fps, {len(prior.spec.joints)} joints)")
     return prior, path
 
 
@@ -537,10 +575,11 @@ def _say(args: argparse.Namespace, text: str) -> None:
         tqdm.write(text, file=sys.stdout)
 
 
-def command_line(args: argparse.Namespace, prior_path: Path) -> str:
-    """The command with every option's value, defaults included, that reproduces this run."""
-    skip = {"func", "command", "quiet", "verbose", "force", *POSITIONAL}
-    words = ["motionopt", args.command, *(str(getattr(args, k)) for k in POSITIONAL)]
+def command_line(args: argparse.Namespace, prior_path: Path, positional: tuple[str, ...] = POSITIONAL) -> str:
+    """The command with every option's value, defaults included, that reproduces this run
+    (``positional``: the names of its positional arguments, in order)."""
+    skip = {"func", "command", "quiet", "verbose", "force", *positional}
+    words = ["motionopt", args.command, *(str(getattr(args, k)) for k in positional)]
     for key, value in vars(args).items():
         if key in skip or value is None or value is False:
             continue
@@ -595,14 +634,18 @@ def write_result(run: TaskRun, result) -> dict:
               "input_frames": run.motion.num_frames, "input_fps": run.motion.fps, "seconds": seconds,
               **result.report()}
     if outs.report is not None:
-        _write_json(outs.report, report)
+        write_json(outs.report, report)
     return report
 
 
-def _write_json(path: Path, data: dict) -> None:
+def json_text(data: object) -> str:
+    """A report as JSON text (arrays as lists, other objects as text)."""
+    return json.dumps(data, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+def write_json(path: Path, data: dict) -> None:
     """Write JSON through a temporary file, so that an interrupted run leaves no half file."""
-    text = json.dumps(data, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
-    write_text_atomic(path, text + "\n")
+    write_text_atomic(path, json_text(data) + "\n")
 
 
 def cmd_task(args: argparse.Namespace) -> int:
