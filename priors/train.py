@@ -115,6 +115,13 @@ def resumed_architecture(state: dict, requested: CCNetConfig) -> CCNetConfig:
     return stored
 
 
+def epoch_bar(steps: int, desc: str, progress: bool) -> tqdm:
+    """A bar over an epoch's ``steps`` on stderr, with ``progress`` and only on a terminal:
+    off one (output redirected to a file) its redraws would fill the file several times a
+    second, and the line each epoch prints says enough."""
+    return tqdm(range(steps), desc=desc, disable=None if progress else True, leave=False)
+
+
 def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = TrainConfig(),
                 metadata: dict | None = None, progress: bool = True, force: bool = False) -> CCNetPrior:
     """Train a CCNet prior on ``dataset`` and write the checkpoint ``out``.
@@ -123,6 +130,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     later call with the same ``out`` resumes from that state. ``out`` (the usable
     checkpoint) holds the weights of the epoch with the best median validation NLL (every
     epoch's when there are no validation clips). ``out.log`` gets one JSON line per epoch.
+    ``progress``: a line per epoch on stdout, and a bar over its steps on a terminal.
     """
     out = Path(out)
     sp = start_run(out, force, config.threads, config.seed)
@@ -155,8 +163,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     logf = log_path(out).open("a")
     for epoch in range(start_epoch, config.epochs):
         order = torch.randperm(len(train_w), generator=gen)
-        bar = tqdm(range(steps_per_epoch), desc=f"epoch {epoch + 1}/{config.epochs}", disable=not progress,
-                   leave=False)
+        bar = epoch_bar(steps_per_epoch, f"epoch {epoch + 1}/{config.epochs}", progress)
         sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0}
         for step in bar:
             idx = order[step * config.batch_size:(step + 1) * config.batch_size].to(dev)

@@ -39,7 +39,7 @@ from .checkpoint import atomic_torch_save, load_plain, save_prior
 from .latent import Discriminator, LatentConfig, LatentPrior
 from .semantic import fit_attribute_directions
 from .style import fit_style_classifier
-from .train import log_path, provenance, start_run, state_path
+from .train import epoch_bar, log_path, provenance, start_run, state_path
 
 log = logging.getLogger(__name__)
 
@@ -310,8 +310,7 @@ class LatentTrainer:
         c = self.config
         t0 = time.perf_counter()
         sums: dict[str, float] = {}
-        bar = tqdm(range(c.epoch_steps), desc=f"{self.phase} {self.epoch + 1}/{c.epochs(self.phase)}",
-                   disable=not progress, leave=False)
+        bar = epoch_bar(c.epoch_steps, f"{self.phase} {self.epoch + 1}/{c.epochs(self.phase)}", progress)
         for _ in bar:
             parts = self.gan_step() if self.phase == "gan" else self.encoder_step(self.phase == "masked")
             self.step += 1

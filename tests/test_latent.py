@@ -258,6 +258,14 @@ def test_commands_take_the_common_task_options(trained, tmp_path, capsys):
         assert main(argv) == 1 and "pass --force" in capsys.readouterr().err  # nothing is overwritten
 
 
+def test_training_progress_off_a_terminal_is_one_line_per_epoch(capsys, tmp_path):
+    short = config(gan_epochs=1, encoder_epochs=1, masked_epochs=1, epoch_steps=2)
+    train_latent(tiny_dataset(), tmp_path / "l.pt", short, progress=True)
+    out, err = capsys.readouterr()  # both streams captured: not terminals, as when redirected to a file
+    assert "\r" not in out + err and "it/s" not in err  # no progress bar redraws
+    assert [line.split()[0] for line in out.splitlines()] == ["phase=gan", "phase=encoder", "phase=masked"]
+
+
 def test_config_rejects_bad_window():
     with pytest.raises(ValueError, match="multiple of"):
         replace(LatentConfig(), window=60)

@@ -42,6 +42,13 @@ def test_training_writes_checkpoint_state_and_log(trained):
     assert meta["fps"] == 30.0 and meta["train_config"]["seed"] == 3
 
 
+def test_progress_off_a_terminal_is_one_line_per_epoch(capsys, tmp_path):
+    train_prior(tiny_dataset(), tmp_path / "p.pt", config(epochs=2), progress=True)
+    out, err = capsys.readouterr()  # both streams captured: not terminals, as when redirected to a file
+    assert "\r" not in out + err and "it/s" not in err  # no progress bar redraws
+    assert [line.split(":")[0] for line in out.splitlines()] == ["epoch 1", "epoch 2"]
+
+
 def test_training_lowers_nll_and_ships_the_selected_epoch(trained):
     records = [json.loads(line) for line in log_path(trained).read_text().splitlines()]
     # one training clip: the held-out one (another dancer, another root height) says little
