@@ -170,6 +170,11 @@ class Camera:
         e = self.elevation
         return p @ (np.cos(e) * self.left - np.sin(e) * np.array([0.0, 1.0, 0.0]))
 
+    def floor_depth(self, p: np.ndarray) -> np.ndarray:
+        """Distance along the view direction's track on the ground (larger is farther), which
+        places a point's foot on the floor: its height does not count, as it does in ``depth``."""
+        return p @ self.left
+
     @classmethod
     def beside(cls, sf: StickFigure, elevation_deg: float = 0.0) -> "Camera":
         """A camera that sees ``sf`` from its side: screen right along the root's travel
@@ -316,9 +321,10 @@ def _ground_xz(track: Track) -> np.ndarray:
 
 def plot_root_paths(paths: Mapping[str, Track], out: str | Path, target: np.ndarray | None = None,
                     title: str = "Root path on the ground", force: bool = False) -> Path:
-    """The root's path on the ground plane (x, z seen from above) of each labelled
-    motion, with start and end marked, dots every second, and the ``target`` polyline
-    ((N, 2) x, z points) when given. Writes a PNG."""
+    """The root's path on the ground plane (x, z seen from above: x to the right, z down
+    the page, as a right-handed y-up world looks from above) of each labelled motion, with
+    start and end marked, dots every second, and the ``target`` polyline ((N, 2) x, z
+    points) when given. Writes a PNG."""
     out = check_output(out, (".png",), force)
     if not paths:
         raise ValueError("give at least one motion to plot")
@@ -344,10 +350,12 @@ def plot_root_paths(paths: Mapping[str, Track], out: str | Path, target: np.ndar
     if any(isinstance(t, Motion) for t in paths.values()):
         ax.plot([], [], "o", color="gray", ms=3.5, label="every second")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.invert_yaxis()  # seen from above with y up: z points down the page
+    # seen from above (y up, right-handed) with x to the right, z points down the page, so a turn to the
+    # walker's left turns left here too, as in render's views; z up the page would be the view from below
+    ax.invert_yaxis()
     ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_title(f"{title}\n(seen from above)")
+    ax.set_ylabel("z (m), growing down the page")
+    ax.set_title(f"{title}\n(seen from above: y up, toward you)")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=9, framealpha=0.9)
     fig.tight_layout()
@@ -372,9 +380,12 @@ def _joint_track(track: Track, joint: str | int) -> tuple[np.ndarray, str]:
 
 
 def plot_joint_trajectories(tracks: Mapping[str, Track], joint: str | int, out: str | Path,
-                            fps: float | None = None, title: str | None = None, force: bool = False) -> Path:
+                            fps: float | None = None, title: str | None = None, first_frame: int = 0,
+                            force: bool = False) -> Path:
     """One joint's world x, y and z over time for each labelled motion (for example
-    noisy, denoised and clean), stacked in three panels. Arrays need ``fps``. Writes a PNG."""
+    noisy, denoised and clean), stacked in three panels. Arrays need ``fps``. Time counts
+    from the file's start: the tracks begin at frame ``first_frame`` (a cut of the file).
+    Writes a PNG."""
     out = check_output(out, (".png",), force)
     if not tracks:
         raise ValueError("give at least one motion to plot")
@@ -386,7 +397,7 @@ def plot_joint_trajectories(tracks: Mapping[str, Track], joint: str | int, out: 
         rate = track.fps if isinstance(track, Motion) else fps
         if rate is None:
             raise ValueError(f"{label!r} is an array: pass fps to put time on the axis")
-        t = np.arange(len(p)) / rate
+        t = (np.arange(len(p)) + first_frame) / rate
         style = dict(color=f"C{i}", lw=1.1 if i == 0 and len(tracks) > 2 else 1.6, label=label,
                      alpha=0.75 if i == 0 and len(tracks) > 2 else 1.0)
         for k, ax in enumerate(axes):
@@ -441,19 +452,22 @@ def plot_filmstrip(rows: Mapping[str, Motion], out: str | Path, frames: int | Se
         u_root = s[:, f.root, 0][:, None]
         half_w = max(half_w, float(np.abs(s[..., 0] - u_root).max()) + 0.15)
         top = max(top, float(s[..., 1].max()) + 2 * _HEAD_RADIUS + 0.05)
-        near_floor = f.ground * np.cos(cam.elevation) + (cam.depth(f.points[ii]).min() - 0.3) * np.sin(cam.elevation)
+        near_floor = f.ground * np.cos(cam.elevation) + (cam.floor_depth(f.points[ii]).min() - 0.3) * np.sin(cam.elevation)
         bottom = min(bottom, float(s[..., 1].min()) - 0.05, float(near_floor) - 0.05, f.ground - 0.12)
     n_r, n_c = len(figs), len(times)
     panel_h = 2.6
     panel_w = panel_h * 2 * half_w / (top - bottom)
     fig = _new_figure(max(4.5, panel_w * n_c + 1.0), panel_h * n_r + 1.3)
+    # the constrained layout keeps the title, the time labels, the frame labels and the legend apart
+    # however many rows there are (tight_layout let the title run into the time labels from five rows on)
+    fig.set_layout_engine("constrained")
     axes = fig.subplots(n_r, n_c, squeeze=False, sharey=True)
     for r, (label, f) in enumerate(zip(rows, figs)):
         for c, t in enumerate(idx[r]):
             ax = axes[r, c]
             u = float(cam.project(f.points[t, f.root])[0])
             _draw_ground(ax, cam, f.ground, (u - half_w, u + half_w),
-                         (float(cam.depth(f.points[t]).min()) - 0.3, float(cam.depth(f.points[t]).max()) + 0.3),
+                         (float(cam.floor_depth(f.points[t]).min()) - 0.3, float(cam.floor_depth(f.points[t]).max()) + 0.3),
                          du=u)
             art = _Figure2D(ax, f, cam, lw=2.0, shadow=cam.elevation > 0)
             art.update(t, du=u)
@@ -471,12 +485,19 @@ def plot_filmstrip(rows: Mapping[str, Motion], out: str | Path, frames: int | Se
             else:
                 ax.spines["left"].set_visible(False)
                 ax.tick_params(left=False)
-    fig.legend(handles=_legend_handles(any(f.contacts.any() for f in figs)), loc="lower center",
+    fig.legend(handles=_legend_handles(any(f.contacts.any() for f in figs)), loc="outside lower center",
                ncol=3, fontsize=9, frameon=False)
     fig.suptitle(title or "Stick figures over time (side view)" if elevation == 0 else
                  title or "Stick figures over time")
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return _save(fig, out)
+
+
+def _glide(track: np.ndarray, rate: float) -> np.ndarray:
+    """A camera coordinate that follows ``track`` (one value per frame at ``rate``),
+    smoothed over a second so that the view glides."""
+    k = max(1, int(rate))
+    pad = np.pad(track, (k, k), mode="edge")
+    return np.convolve(pad, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
 
 
 def render_gif(motion: Motion, out: str | Path, fps: float | None = None, size: tuple[int, int] = (640, 480),
@@ -502,25 +523,32 @@ def render_gif(motion: Motion, out: str | Path, fps: float | None = None, size: 
     cam = Camera.beside(sf, elevation)
     s = cam.project(sf.points)
     e = cam.elevation
-    depth = cam.depth(sf.points)
+    depth = cam.floor_depth(sf.points)
     dmin, dmax = float(depth.min()) - 0.4, float(depth.max()) + 0.4
-    bottom = min(sf.ground * np.cos(e) + dmin * np.sin(e), float(s[..., 1].min())) - 0.05
-    top = float(s[..., 1].max()) + 2 * _HEAD_RADIUS + 0.1
-    half_w = (top - bottom) * width / height / 2
+    # each frame's view: from the floor just in front of the figure to above its head; a camera that looks
+    # down sees the figure higher as it walks away, so the view follows it up and down rather than
+    # holding every depth of the clip at once (which shrank a figure walking a curve to a speck)
+    low = np.minimum(sf.ground * np.cos(e) + (depth.min(axis=1) - 0.4) * np.sin(e), s[..., 1].min(axis=1)) - 0.05
+    high = s[..., 1].max(axis=1) + 2 * _HEAD_RADIUS + 0.1
+    if high.max() - low.min() <= (high - low).max() + 0.3:  # fits: keep the camera still
+        half_h = (high.max() - low.min()) / 2
+        middle = np.full(len(low), (high.max() + low.min()) / 2)
+    else:
+        half_h = (high - low).max() / 2 + 0.15
+        middle = np.clip(_glide((high + low) / 2, rate), high - half_h, low + half_h)  # gliding, never cutting it
+    half_w = half_h * width / height
     root_u = s[:, sf.root, 0]
     if root_u.max() - root_u.min() <= 2 * half_w - 1.2:  # fits: keep the camera still
         centre = np.full(len(root_u), (root_u.max() + root_u.min()) / 2)
-    else:  # follow the root, smoothed over a second so the view glides
-        k = max(1, int(rate))
-        pad = np.pad(root_u, (k, k), mode="edge")
-        centre = np.convolve(pad, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
+    else:  # gliding, the root never nearer an edge than 0.6 m
+        centre = np.clip(_glide(root_u, rate), root_u - half_w + 0.6, root_u + half_w - 0.6)
     fig = _new_figure(width / 100, height / 100, dpi=100)
     ax = fig.add_axes((0, 0, 1, 1))
     ax.set_axis_off()
     ax.set_aspect("equal")
-    ax.set_ylim(bottom, top)
+    # the floor reaches under the lowest view the camera takes, so that no frame shows its edge in front
     _draw_ground(ax, cam, sf.ground, (float(root_u.min()) - 2 * half_w, float(root_u.max()) + 2 * half_w),
-                 (dmin, dmax))
+                 (dmin - 2 * half_h / max(np.sin(e), 0.1), dmax))
     art = _Figure2D(ax, sf, cam, lw=max(1.5, height / 220), shadow=e > 0)
     label = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", fontsize=max(7, height / 45),
                     family="monospace")
@@ -533,6 +561,7 @@ def render_gif(motion: Motion, out: str | Path, fps: float | None = None, size: 
         for t in tqdm(range(sf.num_frames), desc="frames", unit="frame", disable=not progress, leave=False):
             art.update(t)
             ax.set_xlim(centre[t] - half_w, centre[t] + half_w)
+            ax.set_ylim(middle[t] - half_h, middle[t] + half_h)
             src = int(round(t / rate * motion.fps)) + first_frame
             label.set_text(f"t = {src / motion.fps:5.2f} s\nframe {src}")
             writer.grab_frame()

@@ -134,6 +134,76 @@ def test_joint_trajectories_noisy_against_clean(walk, tmp_path):
         P.plot_joint_trajectories({"clean": walk}, "Nope", tmp_path / "bad.png")
 
 
+@pytest.fixture
+def drawn(monkeypatch) -> list:
+    """The matplotlib figures the picture functions save, as they saved them."""
+    figures = []
+    save = P._save
+
+    def keep(fig, out):
+        figures.append(fig)
+        return save(fig, out)
+
+    monkeypatch.setattr(P, "_save", keep)
+    return figures
+
+
+def test_filmstrip_title_clears_the_time_labels_however_many_rows(walk, tmp_path, drawn):
+    for rows in (1, 6):
+        P.plot_filmstrip({f"take {i}": walk for i in range(rows)}, tmp_path / f"{rows}.png", title="Takes")
+        fig = drawn[-1]
+        renderer = fig.canvas.get_renderer()
+        title = fig._suptitle.get_window_extent(renderer)
+        labels = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_title()]
+        assert labels and all(title.y0 >= label.y1 for label in labels), rows
+
+
+def test_path_pictures_see_the_ground_from_above(tmp_path, drawn):
+    # a walker heading +x turns to its left: towards -z (left = up x forward, y up, right-handed)
+    a = np.linspace(0.0, np.pi / 2, 30)
+    turn = np.stack([np.sin(a), np.cos(a) - 1.0], axis=-1)
+    P.plot_root_paths({"left turn": turn}, tmp_path / "turn.png")
+    ax = drawn[-1].axes[0]
+    start, end = ax.transData.transform(turn[[0, -1]])
+    assert end[0] > start[0] and end[1] > start[1]  # seen from above, heading right, it turns up the page
+    assert "seen from above" in ax.get_title() and "down the page" in ax.get_ylabel()
+
+
+def test_trajectory_times_count_from_the_first_frame_drawn(walk_path, tmp_path, capsys, drawn):
+    assert main(["plot", str(walk_path), "--kind", "trajectory", "--start", "15", "--out",
+                 str(tmp_path / "t.png")]) == 0
+    t = drawn[-1].axes[0].lines[0].get_xdata()
+    assert t[0] == pytest.approx(15 / 30) and drawn[-1].axes[0].get_xlim()[0] >= 0.4
+
+
+def _limbs_height(path: Path) -> list[int]:
+    """Pixel rows each frame of a GIF spans with limb colours, outside the legend (bottom right)."""
+    heights = []
+    with Image.open(path) as im:
+        for f in range(im.n_frames):
+            im.seek(f)
+            img = np.asarray(im.convert("RGB")).astype(int)
+            mask = np.zeros(img.shape[:2], bool)
+            for colour in (P.LEFT_COLOR, P.RIGHT_COLOR):
+                rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)])
+                mask |= np.abs(img - rgb).sum(axis=-1) < 40
+            mask[-70:, -170:] = False  # the legend
+            rows = np.nonzero(mask.any(axis=1))[0]
+            heights.append(int(rows.max() - rows.min()) if len(rows) else 0)
+    return heights
+
+
+def test_gif_from_above_keeps_the_figure_large_along_a_curve(walk, tmp_path):
+    # the walk carried along a quarter circle of 5 m, so that it moves away from the camera as it goes
+    a = np.linspace(0.0, np.pi / 2, walk.num_frames)[:, None]
+    curve = walk.with_frames(walk.rotations, walk.root + 5.0 * np.hstack([np.sin(a), 0 * a, 1 - np.cos(a)]),
+                             walk.translations)
+    side = _limbs_height(P.render_gif(curve, tmp_path / "side.gif", elevation=0))
+    above = _limbs_height(P.render_gif(curve, tmp_path / "above.gif", elevation=40))
+    assert min(side) > 0 and min(above) > 0  # in view in every frame
+    assert np.mean(above) > 0.6 * np.mean(side)  # tilting the camera does not shrink the figure
+
+
 def test_pictures_are_not_overwritten_without_force(walk, tmp_path):
     out = tmp_path / "path.png"
     out.write_bytes(b"mine")

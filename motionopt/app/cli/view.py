@@ -127,7 +127,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         for label, m in motions.items():
             if joint not in m.skeleton.names:
                 raise UserError(f"joint {joint!r} is not in {label}; its joints are: {', '.join(m.skeleton.names)}")
-        plot.plot_joint_trajectories(motions, joint, out, title=args.title, force=args.force)
+        plot.plot_joint_trajectories(motions, joint, out, title=args.title, first_frame=args.start, force=args.force)
     if not args.quiet:
         print(f"wrote {out}")
     return 0
