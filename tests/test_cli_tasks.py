@@ -154,6 +154,21 @@ def test_a_task_warns_once_when_the_speeds_say_the_header_rate_is_wrong(caplog, 
     assert said[("--fps", "30")] == [] and not (tmp_path / "out.bvh").exists()
 
 
+def test_tasks_run_torch_on_one_thread_unless_told(clips, tmp_path):
+    needs("bandai-locomotion-ccnet.pt")
+    from motionopt.app.cli import build_parser
+    from motionopt.app.cli.tasks import start
+
+    argv = ["denoise", str(clips["walk"]), "--out", str(tmp_path / "out.bvh")]
+    try:
+        start(build_parser().parse_args([*argv, "--threads", "2"]))
+        assert torch.get_num_threads() == 2
+        start(build_parser().parse_args(argv))
+        assert torch.get_num_threads() == 1  # a busy machine ran path-follow 8-35 times slower on two
+    finally:
+        torch.set_num_threads(1)
+
+
 def test_denoise_reduces_jitter_and_tells_what_it_does(capsys, clips, tmp_path):
     needs("cmu-ccnet.pt")
     out = tmp_path / "clean.bvh"

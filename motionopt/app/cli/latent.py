@@ -11,7 +11,7 @@ from pathlib import Path
 from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
 from .tasks import (add_io_options, add_prior_options, check_paths, command_line, filmstrip, json_text, load_input,
-                    load_prior, report_output, write_json)
+                    load_prior, report_output, use_threads, write_json)
 
 
 def register(sub) -> None:
@@ -153,6 +153,7 @@ def _start(args: argparse.Namespace, names: tuple[str, ...], stems: list[str]) -
     pictures = [b.with_suffix(".png") for b in bvhs] if args.plot else []
     report = report_output(args)
     check_paths([report] if new_folder else [*bvhs, *pictures, report], inputs, args.force)
+    use_threads(args)
     motions = [load_input(args, path) for path in inputs]
     prior, prior_path = load_prior(motions[0], args, "LatentPrior")
     return LatentRun(args, names, motions, prior, prior_path, bvhs, pictures, report, started)

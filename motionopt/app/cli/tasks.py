@@ -377,11 +377,21 @@ def add_io_options(p: argparse.ArgumentParser, out: str, report: str, out_dir: b
 
 
 def add_prior_options(group: argparse._ArgumentGroup) -> None:
-    """--prior and --seed, which every task command takes."""
+    """--prior, --seed and --threads, which every task command takes."""
     group.add_argument("--prior", default=None, metavar="CKPT",
                        help="prior checkpoint: a file, or a shipped checkpoint's name (`motionopt prior-info --list`); "
                        "default: the shipped one matching the input's skeleton")
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    group.add_argument("--threads", type=_positive(int), default=1, metavar="N",
+                       help="CPU threads for torch (default 1: the priors' small convolutions run fastest on one, and "
+                       "on a busy machine two ran a path-follow 8 to 35 times slower)")
+
+
+def use_threads(args: argparse.Namespace) -> None:
+    """Run torch on --threads threads."""
+    import torch
+
+    torch.set_num_threads(args.threads)
 
 
 # ---- the steps every task command takes (and the batch with it) -----------------------------------
@@ -419,6 +429,7 @@ def start(args: argparse.Namespace, progress: Callable[[dict], object] | None = 
     started = time.perf_counter()
     entry = TASKS[args.command]
     outs = check_outputs(args)
+    use_threads(args)
     latent = _method(args) == "latent"
     if latent and entry.latent_refused:
         raise UserError(entry.latent_refused)
