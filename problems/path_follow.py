@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
-from motionopt.metrics import foot_skating
+from motionopt.metrics import FOOT_SKATING_MEANS, foot_skating
 from motionopt.motion import Motion, unit_scale
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
 from motionopt.smoothing import smoothstep
@@ -243,7 +243,7 @@ class PathFollow:
                 f"{m['path_distance_cm_max']:.1f} cm at most",
                 f"the motion ends {m['end_distance_to_path_end_m']:.2f} m from the path's end",
                 f"{m['new_frames']} new frames at the prior's rate, at {m['speed_m_per_s']:.2f} m/s",
-                f"foot skating: {m['foot_skating_cm_per_s']:.1f} cm/s (mocap: a few cm/s)",
+                f"foot skating: {m['foot_skating_cm_per_s']:.1f} cm/s ({FOOT_SKATING_MEANS})",
                 f"naturalness: {m['prior_nll_per_frame']:.1f} nats per frame under the prior (lower is more natural)",
                 f"speed: {m['frames_per_second']:.0f} frames per second"]
 

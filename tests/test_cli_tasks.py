@@ -108,6 +108,7 @@ def test_path_follow_continues_the_seed_along_the_path(capsys, clips, tmp_path):
     assert rep["metrics"]["path_distance_cm_mean"] >= 0 and rep["frames"] == 45
     assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "root distance to the path" in stdout and f"wrote {out}" in stdout
+    assert "cm/s (speed over the ground of feet within 3 cm of their resting height; clean mocap: " in stdout
 
 
 def test_path_follow_refuses_a_path_in_centimetres_before_synthesis(capsys, clips, tmp_path):

@@ -1,5 +1,6 @@
 """The offline demo end to end (small budgets) on motion it generates itself, and its BVH
 files read by an independent parser."""
+import re
 from pathlib import Path
 
 import bvhio
@@ -7,17 +8,41 @@ import pytest
 
 from motionopt import bvh
 from motionopt.app.cli import main
+from motionopt.app.cli.demo import EXPLAIN, figure
 from motionopt.app.demo import FILES, demo_inputs, run_demo
 from priors.sampling import root_speed
 
 
 @pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory) -> Path:
+def demo_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
     summary = run_demo(out, fast=True)
     assert [s.name for s in summary.steps] == ["inputs", "path following", "denoising", "in-betweening",
                                                "completion", "spatial edit", "latent edit"]
-    return out
+    return summary
+
+
+@pytest.fixture(scope="module")
+def demo_dir(demo_run) -> Path:
+    return demo_run.out_dir
+
+
+def test_the_readme_shows_what_the_demo_prints(demo_run) -> None:
+    """The README's sample summary: every line explained as the demo explains it, and its
+    figures those of a run (but the path and the speeds, which --fast and the machine change)."""
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    block = readme.split("The printed summary explains every number")[1].split("```")[1]
+    shown: dict[str, list[tuple[str, str]]] = {}
+    for line in block.splitlines():
+        if head := re.match(r"(\w[\w -]*): .* \(\d+ s\)$", line):
+            shown[head[1]] = []
+        elif row := re.match(r"\s+(\S+)  (.+)$", line):
+            shown[list(shown)[-1]].append((row[1], row[2]))
+    assert set(shown) == {s.name for s in demo_run.steps}
+    for step in demo_run.steps:
+        assert [text for _, text in shown[step.name]] == [EXPLAIN[k] for k in step.metrics], step.name
+        if step.name != "path following":
+            assert [v for v, _ in shown[step.name]] == [figure(step.metrics[k]) for k in step.metrics], step.name
 
 
 def test_the_package_ships_no_motion_files() -> None:

@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import argparse
 
+from motionopt.metrics import FOOT_SKATING_MEANS
+
 from . import add_common
 
 EXPLAIN = {
     "path_distance_cm_mean": "mean distance of the root from the drawn path (cm per frame)",
-    "foot_skating_cm_per_s": "horizontal speed of planted feet (cm/s; mocap is a few cm/s)",
+    "foot_skating_cm_per_s": f"foot skating (cm/s): {FOOT_SKATING_MEANS}",
     "new_frames": "frames synthesised after the seed",
     "frames_per_second": "output frames per second of solving",
     "mpjpe_noisy_cm": "mean joint position error of the noisy input against the clean clip (cm)",
@@ -35,16 +37,21 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_demo)
 
 
-def _fmt(v) -> str:
+def figure(v) -> str:
+    """A metric as the summary prints it."""
     if isinstance(v, float):
         return f"{v:.2f}"
     if isinstance(v, list):
-        return ", ".join(_fmt(x) for x in v)
+        return ", ".join(figure(x) for x in v)
     return str(v)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    import torch
+
     from motionopt.app.demo import run_demo
+
+    torch.set_num_threads(1)  # as the task commands: the priors' small convolutions run fastest on one thread
 
     say = (lambda s: None) if args.quiet else (lambda s: print(f"... {s}", flush=True))
     summary = run_demo(args.out_dir, force=args.force, fast=args.fast, progress=say)
@@ -56,7 +63,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         for f in step.files:
             print(f"  wrote {f}")
         for k, v in step.metrics.items():
-            print(f"  {_fmt(v):>10}  {EXPLAIN.get(k, k)}")
+            print(f"  {figure(v):>10}  {EXPLAIN.get(k, k)}")
     print("\nOpen the .png files to see the results; the .bvh files open in Blender or any BVH viewer; "
           "`motionopt render FILE.bvh --out FILE.gif` animates one. The path-following prior is trained on "
           "Bandai-Namco-Research-Motiondataset (CC BY-NC 4.0, non-commercial).")

@@ -219,8 +219,9 @@ def _kept_ranges(args: argparse.Namespace, motion: Motion) -> list[tuple[int, in
 
 
 CLEAN_FEET = arg("--clean-feet", action="store_true",
-                 help="plant the feet the prior finds in contact by leg IK: no sliding, at a cost of centimetres in "
-                 "fidelity (not with --method latent)")
+                 help="plant the feet the prior finds in contact by leg IK: less sliding in synthesised frames, not "
+                 "none, for joints moved by up to tens of centimetres; on denoised capture it can add sliding (the "
+                 "README gives figures; not with --method latent)")
 
 #: The task commands by name, in the order ``motionopt --help`` lists them.
 TASKS: dict[str, TaskEntry] = {
