@@ -96,8 +96,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, out_required: bool = True) -> None:
-    """The options every task command takes (``tasks.add_io_options``, --prior, --seed),
-    then the latent inversion's own; ``out``: what --out (or --out-dir) holds."""
+    """The options every task command takes (``tasks.add_io_options``, and ``add_prior_options``:
+    --prior, --seed, --threads), then the latent inversion's own; ``out``: what --out (or
+    --out-dir) holds."""
     io = add_io_options(p, out, "write each output's inversion figures and timings, the prior and the command",
                         out_dir=out_dir, out_required=out_required)
     io.add_argument("--json", action="store_true", help="print the report as JSON")
