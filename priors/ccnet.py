@@ -26,6 +26,7 @@ from motionopt.dataset import Normalizer
 from motionopt.features import FeatureSpec, contact_heights, planted_root_step
 from motionopt.skeleton import Skeleton
 
+from .degrade import degraded_batch
 from .temperature import DEFAULT_TEMPERATURE
 
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
@@ -53,8 +54,11 @@ class CCNetConfig:
     #: Predict the root rates (ground velocity, yaw rate) directly rather than as a change
     #: from the previous frame.
     absolute_root: bool = True
-    #: Predict the root height directly too (older checkpoints); a change is more precise.
-    absolute_height: bool = False
+    #: Predict the root height directly too. A change from the previous frame is more
+    #: precise one step ahead but integrates in free-running rollouts: the Bandai prior
+    #: trained that way sank its hips 12-17 m below the floor within 60 s from every one
+    #: of 8 held-out starts (bench/prior.py, "a minute of motion").
+    absolute_height: bool = True
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
@@ -238,7 +242,8 @@ class CCNetPrior(nn.Module):
 
     # ---- training loss -----------------------------------------------------------------
     def loss(self, x: Tensor, valid: Tensor | None = None, noise_std: float = 0.03, smooth_weight: float = 10.0,
-             contact_weight: float = 2.0, passes: int = 1) -> tuple[Tensor, dict[str, float]]:
+             contact_weight: float = 2.0, passes: int = 1, contrast_weight: float = 0.0, contrast_margin: float = 0.1,
+             generator: torch.Generator | None = None) -> tuple[Tensor, dict[str, float]]:
         """Training loss on windows ``x (B, T, D)`` (frames where ``valid (B, T)`` is False
         are padding): Gaussian NLL per frame and moving dimension, plus smoothness of the
         predicted means and contact cross-entropy. Noise augmentation perturbs the
@@ -249,6 +254,13 @@ class CCNetPrior(nn.Module):
         k's predictions (no gradient through the draw), so the model learns to recover
         from its own errors, which teacher forcing alone never shows it and which make
         free-running rollouts drift.
+
+        ``contrast_weight`` > 0 adds the ranking part: each window gets a degraded copy
+        (``priors.degrade``: frozen, low-passed, slowed, sped up or noisy) whose mean NLL
+        per frame and moving dimension must exceed the real window's by
+        ``contrast_margin`` nats; the shortfall is penalised (hinge). Only the copy's NLL
+        gets this gradient (the real window's is detached), so the likelihood of real
+        motion, and its calibration, stay the maximum-likelihood fit.
         """
         p = self.spec.pose_dim
         target = x[:, 1:]
@@ -256,14 +268,11 @@ class CCNetPrior(nn.Module):
         hist = x[:, :-1]
         nlls = []
         for k in range(passes):
-            noisy = hist
-            if noise_std > 0:
-                noise = torch.randn_like(hist) * noise_std
-                noise[..., p:] = 0
-                noisy = hist + noise
-            mean, log_std, logits = self._predict(noisy)
-            nlls.append((self._gaussian_nll(target, mean, log_std) * w).sum() / w.sum())
+            mean, log_std, logits = self._predict(self._noised(hist, noise_std))
+            per_frame = self._gaussian_nll(target, mean, log_std)
+            nlls.append((per_frame * w).sum() / w.sum())
             if k == 0:
+                real = per_frame
                 acc = (mean[:, 2:] - 2 * mean[:, 1:-1] + mean[:, :-2]).pow(2).sum(-1)
                 smooth = (acc * w[:, 2:]).sum() / w[:, 2:].sum().clamp_min(1)
                 bce = Fn.binary_cross_entropy_with_logits(logits, target[..., p:], reduction="none").mean(-1)
@@ -275,5 +284,40 @@ class CCNetPrior(nn.Module):
         nll = torch.stack(nlls).mean()
         dims = self.moving.sum()
         total = nll / dims + smooth_weight * smooth / dims + contact_weight * contact
-        return total, {"nll": float(nlls[0].detach()), "nll_own": float(nlls[-1].detach()),
-                       "smooth": float(smooth.detach()), "contact": float(contact.detach())}
+        parts = {"nll": float(nlls[0].detach()), "nll_own": float(nlls[-1].detach()),
+                 "smooth": float(smooth.detach()), "contact": float(contact.detach())}
+        if contrast_weight > 0:
+            hinge, ranked = self._contrast(x, real.detach(), w, noise_std, contrast_margin, generator)
+            total = total + contrast_weight * hinge
+            parts.update(contrast=float(hinge.detach()), ranked=ranked)
+        return total, parts
+
+    def _noised(self, hist: Tensor, noise_std: float) -> Tensor:
+        """The history with Gaussian noise of ``noise_std`` on its pose dimensions."""
+        if noise_std <= 0:
+            return hist
+        noise = torch.randn_like(hist) * noise_std
+        noise[..., self.spec.pose_dim:] = 0
+        return hist + noise
+
+    def _contrast(self, x: Tensor, real: Tensor, w: Tensor, noise_std: float, margin: float,
+                  generator: torch.Generator | None) -> tuple[Tensor, float]:
+        """Hinge on (real window's NLL + margin - its degraded copy's NLL), per moving
+        dimension and frame, for windows whose copy differs from them (a frozen copy of a
+        window that stands still is no degradation); and the share of windows ranked
+        right by the margin."""
+        norm = self.normalizer
+        with torch.no_grad():
+            raw, mask, _ = degraded_batch(norm.denormalize(x), self.spec, generator)
+            copy = self.project(norm.normalize(raw).to(x))
+        mask = mask[:, 1:].to(x) * w
+        mean, log_std, _ = self._predict(self._noised(copy[:, :-1], noise_std))
+        fake = self._gaussian_nll(copy[:, 1:], mean, log_std)
+        dims = self.moving.sum()
+        fake_mean = (fake * mask).sum(1) / mask.sum(1).clamp_min(1) / dims
+        real_mean = (real * w).sum(1) / w.sum(1).clamp_min(1) / dims
+        p = self.spec.pose_dim
+        differs = ((copy[:, 1:, :p] - x[:, 1:, :p]).abs().mean(-1) * mask).sum(1) / mask.sum(1).clamp_min(1) > 0.05
+        gap = Fn.relu(real_mean + margin - fake_mean) * differs
+        ranked = float(((fake_mean > real_mean + margin) | ~differs).float().mean())
+        return gap.sum() / differs.sum().clamp_min(1), ranked

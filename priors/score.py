@@ -7,6 +7,8 @@ import numpy as np
 import torch
 
 from motionopt.codec import Codec
+from motionopt.copies import window_copies
+from motionopt.features import estimate_ground
 from motionopt.motion import Motion
 
 from .checkpoint import CheckpointError, check_compatible
@@ -64,3 +66,43 @@ def score_motion(prior, motion: Motion, window_seconds: float = 1.0, n_worst: in
         taken[i] = True
         worst.append((int(round(i * scale)), min(motion.num_frames, int(round((i + w) * scale))), float(sums[i])))
     return ScoreReport(float(nll.mean()), motion.num_frames, prior.spec.fps, per, worst)
+
+
+@dataclass
+class CopyVerdict:
+    """NLL per frame of one window of a motion and of each of its degraded copies
+    (``motionopt.copies``), and whether the window scores better than each."""
+
+    start: int
+    frames: int
+    real: float
+    copies: dict[str, float]
+
+    def wins(self) -> dict[str, bool]:
+        return {name: self.real < v for name, v in self.copies.items()}
+
+
+@torch.no_grad()
+def copy_verdicts(prior, motion: Motion, window_seconds: float | None = 4.0, stride_seconds: float | None = None
+                  ) -> list[CopyVerdict]:
+    """The prior's NLL per frame of each ``window_seconds`` window of ``motion`` (every
+    ``stride_seconds``, default the window; None: the whole clip as one window) against
+    its degraded copies. Heights of every copy are measured from the motion's ground."""
+    codec = Codec.of(prior)
+    checked_features(prior, motion)
+    model = codec.model_motion(motion)
+    ground = estimate_ground(model.positions(), prior.spec.contact_indices())
+    n = model.num_frames if window_seconds is None else int(round(window_seconds * prior.spec.fps))
+    step = n if stride_seconds is None else int(round(stride_seconds * prior.spec.fps))
+    starts = list(range(0, model.num_frames - n + 1, step))
+    if not starts or n < 3:
+        raise ValueError(f"the clip is too short for {window_seconds} s windows at the prior's rate")
+
+    def nll(m: Motion) -> float:
+        x = codec.features(m, ground)
+        return float(prior.nll(x[1:], context=x[:1]).mean())
+
+    out = []
+    for s, copies in zip(starts, window_copies(model, starts, n)):
+        out.append(CopyVerdict(s, n, nll(model[s:s + n]), {k: nll(v) for k, v in copies.items() if len(v) >= 3}))
+    return out

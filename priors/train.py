@@ -38,6 +38,12 @@ class TrainConfig:
     min_clip_frames: int = 8
     smooth_weight: float = 10.0
     contact_weight: float = 2.0
+    #: Weight of the ranking loss that keeps degraded copies of each window (frozen,
+    #: low-passed, retimed, noisy: ``priors.degrade``) a margin above the real window's
+    #: NLL; 0 trains on likelihood alone, which scores still and smoothed motion best.
+    contrast_weight: float = 1.0
+    #: That margin, in nats per frame and moving dimension.
+    contrast_margin: float = 0.1
     seed: int = 0
     max_minutes: float | None = None
     threads: int | None = None
@@ -164,11 +170,12 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     for epoch in range(start_epoch, config.epochs):
         order = torch.randperm(len(train_w), generator=gen)
         bar = epoch_bar(steps_per_epoch, f"epoch {epoch + 1}/{config.epochs}", progress)
-        sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0}
+        sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0, "ranked": 0.0}
         for step in bar:
             idx = order[step * config.batch_size:(step + 1) * config.batch_size].to(dev)
             loss, parts = prior.loss(train_w[idx], train_valid[idx], config.noise_std, config.smooth_weight,
-                                     config.contact_weight, config.passes)
+                                     config.contact_weight, config.passes, config.contrast_weight,
+                                     config.contrast_margin, gen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(prior.parameters(), 1.0)
@@ -177,12 +184,15 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             sums["loss"] += float(loss.detach())
             sums["nll"] += parts["nll"]
             sums["nll_own"] += parts["nll_own"]
+            sums["ranked"] += parts.get("ranked", 0.0)
             bar.set_postfix(nll=f"{parts['nll']:.1f}")
         record = {
             "epoch": epoch + 1,
             "train_loss": sums["loss"] / steps_per_epoch,
             "train_nll_per_frame": sums["nll"] / steps_per_epoch,
             "train_nll_own_history": sums["nll_own"] / steps_per_epoch,
+            #: share of degraded copies ranked behind their window by the margin (None: no ranking loss)
+            "train_ranked": sums["ranked"] / steps_per_epoch if config.contrast_weight > 0 else None,
             "val_nll_per_frame": None,
             "val_nll_median": None,
             "lr": sched.get_last_lr()[0],
@@ -194,8 +204,10 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
         logf.write(json.dumps(record) + "\n")
         logf.flush()
         if progress:
+            ranked = "-" if record["train_ranked"] is None else f"{record['train_ranked']:.2f}"
             tqdm.write(f"epoch {epoch + 1}: train nll/frame {record['train_nll_per_frame']:.2f}, "
-                       f"val nll/frame {record['val_nll_per_frame']}, {record['minutes']:.1f} min")
+                       f"val nll/frame {record['val_nll_per_frame']}, degraded copies ranked "
+                       f"{ranked}, {record['minutes']:.1f} min")
         prior.metadata["history"] = history
         prior.metadata["training_minutes"] = record["minutes"]
         prior.metadata["epochs_done"] = epoch + 1

@@ -11,7 +11,8 @@ from . import UserError, add_common
 #: Defaults of the train-prior options that map onto ``TrainConfig`` and ``CCNetConfig``
 #: (written out so that the parser does not import torch).
 TRAIN_DEFAULTS = {"batch_size": 32, "noise_std": 0.03, "smooth_weight": 10.0, "channels": 64,
-                  "input_dropout": 0.1, "log_std_min": -5.0, "std_floor": 0.0}
+                  "input_dropout": 0.1, "log_std_min": -5.0, "std_floor": 0.0, "stride": 8,
+                  "contrast_weight": 1.0, "contrast_margin": 0.1}
 
 
 def register(sub) -> None:
@@ -42,6 +43,14 @@ def register(sub) -> None:
                    help="floor of the predicted std in the features' own units (6D rotation components, "
                    "metres), so that dimensions nearly still in training are not scored as certain "
                    f"(default {d['std_floor']:g}: none)")
+    p.add_argument("--stride", type=int, default=d["stride"],
+                   help=f"frames between the starts of training windows (default {d['stride']})")
+    p.add_argument("--contrast-weight", type=float, default=d["contrast_weight"],
+                   help="weight of the ranking loss that keeps degraded copies of each window (frozen, low-passed, "
+                   "slowed, sped up, noisy) a margin above the real window's NLL "
+                   f"(default {d['contrast_weight']:g}; 0: likelihood alone, which prefers still, smooth motion)")
+    p.add_argument("--contrast-margin", type=float, default=d["contrast_margin"],
+                   help=f"that margin in nats per frame and moving dimension (default {d['contrast_margin']:g})")
     p.add_argument("--device", default="cpu", help="torch device to train on: cpu (default) or cuda")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
@@ -62,6 +71,9 @@ def register(sub) -> None:
                    "(default: the shipped one matching the skeleton)")
     p.add_argument("--fps", type=float, default=None, help="override the file's frame rate")
     p.add_argument("--unit", default="auto", help="length unit of the file: cm, m, mm, in or auto")
+    p.add_argument("--copies", action="store_true",
+                   help="also score degraded copies of the clip (1 cm noise, low-passed at 2 and 1 Hz, frozen, "
+                   "half and double speed) and say whether the prior ranks the clip above each")
     p.add_argument("--json", action="store_true", help="print JSON (key nll_per_frame)")
     add_common(p)
     p.set_defaults(func=cmd_score)
@@ -108,7 +120,8 @@ def train_config(args: argparse.Namespace):
                         log_std_min=args.log_std_min, std_floor=args.std_floor)
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
-                       noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model)
+                       noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model,
+                       stride=args.stride, contrast_weight=args.contrast_weight, contrast_margin=args.contrast_margin)
 
 
 def train_metadata(args: argparse.Namespace) -> dict:
@@ -221,17 +234,24 @@ def list_shipped(args: argparse.Namespace) -> int:
 def cmd_score(args: argparse.Namespace) -> int:
     from motionopt import bvh
     from priors.checkpoint import load_prior_of_kind
-    from priors.score import score_motion
+    from priors.score import copy_verdicts, score_motion
 
     motion = bvh.load(args.input, unit=args.unit, fps=args.fps)
     prior, path = load_prior_of_kind(motion.skeleton, args.prior, "CCNetPrior", "score",
                                      "a latent prior gives no per-frame likelihood to score with")
     report = score_motion(prior, motion)
+    verdict = copy_verdicts(prior, motion, window_seconds=None)[0] if args.copies else None
     if args.json:
-        print(json.dumps({**report.to_dict(), "prior": str(path)}, indent=2))
+        copies = {"copies": verdict.copies, "copy_scored_nll_per_frame": verdict.real} if verdict else {}
+        print(json.dumps({**report.to_dict(), **copies, "prior": str(path)}, indent=2))
     elif not args.quiet:
         print(f"{args.input}: {report.nll_per_frame:.2f} nats per frame under {path.name} "
               f"(lower is more natural; {report.frames} frames at {motion.fps:g} fps)")
         for a, b, v in report.worst:
             print(f"  frames {a}:{b}  {v:.2f} nats per frame")
+        if verdict:
+            print(f"degraded copies (the clip scores {verdict.real:.2f} with heights from its own ground):")
+            for name, v in verdict.copies.items():
+                word = "less natural than the clip" if v > verdict.real else "MORE NATURAL than the clip"
+                print(f"  {name:<14} {v:10.2f} nats per frame: {word}")
     return 0
