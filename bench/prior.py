@@ -24,6 +24,13 @@ metadata, loaded from the data folder named there:
    joint speed of the held-out clips; foot skating of the rollouts and of the clips:
    mean horizontal speed of the contact joints over frame steps on which they are
    planted, i.e. less than 3 cm above their planted height (``motionopt.metrics``).
+2b. Ranking: on held-out 4 s windows (every 2 s), the NLL per frame of the window against
+   that of each degraded copy (``motionopt.copies``: 1 cm noise, Butterworth low-pass at
+   2 and 1 Hz, frozen, half and double speed); and calibration of the one-step
+   predictions per feature group (z RMS and spread, contact head Brier score).
+3b. A minute of motion: 60 s rollouts from the 8 longest held-out clips at the sampling
+   temperature, judged per 5 s segment against the held-out clips' hip height (1st-99th
+   percentile), lowest foot joint near the floor, foot skating and joint speed.
 4. Speed: one forward and backward pass of ``nll`` over 300 frames (median of 20),
    with the parameter count and the file size.
 
@@ -377,6 +384,10 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
               f"discrimination margins (baseline): noisy - clean = {m['base_noisy'] - m['base']:+.1f}, "
               f"2x speed - clean = {m['base_fast'] - m['base']:+.1f} nats per frame", ""]
 
+    # 2b. ranking against degraded copies, and calibration
+    lines += ranking(prior, clips)[0]
+    lines += one_step_calibration(prior, clips)
+
     # 3. rollouts
     fps = prior.spec.fps
     cal = prior.metadata.get("temperature_calibration")
@@ -410,12 +421,18 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
                   f"foot skating: rollouts {statistics.mean(skates):.3f} m/s, held-out data {data_skate:.3f} m/s, "
                   f"ratio {statistics.mean(skates) / data_skate:.2f} (target <= 2)", ""]
 
+    # 3b. a minute of motion, per segment
+    lines += minute_of_motion(prior, clips, prior.sample_temperature, seconds)
+
     # 4. speed
     x = torch.cat([c.x for c in clips])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as the tasks run it (--threads 1)
     sec = time_nll_pass(prior, x)
+    torch.set_num_threads(threads)
     n_par = sum(p.numel() for p in prior.parameters())
     lines += [f"speed: forward+backward of nll over 300 frames: {1000 * sec:.1f} ms (median of 20, "
-              f"{torch.get_num_threads()} torch threads); {n_par:,} parameters, "
+              f"one torch thread); {n_par:,} parameters, "
               f"file {path.stat().st_size / 1e6:.2f} MB", ""]
     return "\n".join(lines)
 
