@@ -362,6 +362,62 @@ def plot_root_paths(paths: Mapping[str, Track], out: str | Path, target: np.ndar
     return _save(fig, out)
 
 
+def plot_path_follow(motion: Motion, out: str | Path, target: np.ndarray, new_from: int = 0, poses: int = 6,
+                     title: str = "Path following", force: bool = False) -> Path:
+    """What a path-following result is about, on two panels. Left, seen from above: the
+    target path, the root's path, each foot's track with the frames it is planted on the
+    ground marked, and the whole body at ``poses`` moments of the new frames (from
+    ``new_from`` on). Right, over time: the hip height and the lowest foot's height above
+    the floor, so that a walk that sinks, floats or falls shows where it does. Writes a PNG."""
+    out = check_output(out, (".png",), force)
+    tgt = np.asarray(target, dtype=np.float64)
+    if tgt.ndim != 2 or tgt.shape[1] != 2 or len(tgt) < 2:
+        raise ValueError(f"the target path must be (N, 2) x, z points with N >= 2, got shape {tgt.shape}")
+    sf = stick_figure(motion)
+    feet = [i for i in range(sf.points.shape[1]) if sf.contacts[:, i].any()] or [sf.root]
+    fig = _new_figure(13.0, 6.0)
+    fig.set_layout_engine("constrained")
+    top, curve = fig.subplots(1, 2, width_ratios=(1.25, 1.0))
+    top.plot(tgt[:, 0], tgt[:, 1], "--", color="black", lw=1.5, label="target path", zorder=2)
+    xz = sf.points[:, sf.root][:, [0, 2]]
+    top.plot(xz[:new_from + 1, 0], xz[:new_from + 1, 1], color="gray", lw=2, label="seed", zorder=3)
+    top.plot(xz[new_from:, 0], xz[new_from:, 1], color="C0", lw=2, label="root (output)", zorder=3)
+    for k, i in enumerate(feet):
+        p = sf.points[new_from:, i][:, [0, 2]]
+        top.plot(p[:, 0], p[:, 1], color="C1", lw=0.6, alpha=0.6, zorder=2,
+                 label="foot tracks" if k == 0 else None)
+        down = sf.contacts[new_from:, i]
+        top.plot(p[down, 0], p[down, 1], "o", color=CONTACT_COLOR, ms=3, zorder=3,
+                 label="foot on the ground" if k == 0 else None)
+    colors = {1: LEFT_COLOR, -1: RIGHT_COLOR, 0: CENTRE_COLOR}
+    n = motion.num_frames
+    for t in np.unique(np.linspace(new_from, n - 1, max(1, poses)).round().astype(int)):
+        for a, b in sf.bones:
+            seg = sf.points[t, [a, b]][:, [0, 2]]
+            top.plot(seg[:, 0], seg[:, 1], color=colors[int(sf.sides[b])], lw=1.4, zorder=4)
+        top.annotate(f"{t / motion.fps:.1f} s", sf.points[t, sf.root][[0, 2]], fontsize=8, zorder=5,
+                     xytext=(4, 4), textcoords="offset points")
+    top.set_aspect("equal", adjustable="datalim")
+    top.invert_yaxis()  # seen from above, y up: z grows down the page (see plot_root_paths)
+    top.set_xlabel("x (m)")
+    top.set_ylabel("z (m), growing down the page")
+    top.set_title("seen from above: path, feet and poses")
+    top.grid(True, alpha=0.3)
+    top.legend(loc="best", fontsize=8, framealpha=0.9)
+    time = np.arange(n) / motion.fps
+    curve.plot(time, sf.points[:, sf.root, 1] - sf.ground, color="C0", label="hip height")
+    curve.plot(time, sf.points[:, feet, 1].min(axis=1) - sf.ground, color="C1", label="lowest foot joint")
+    curve.axvspan(0, new_from / motion.fps, color="gray", alpha=0.15, label="seed")
+    curve.axhline(0.0, color="black", lw=0.8)
+    curve.set_xlabel("time (s)")
+    curve.set_ylabel("height above the floor (m)")
+    curve.set_title("hips and feet over time")
+    curve.grid(True, alpha=0.3)
+    curve.legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, out)
+
+
 def _joint_track(track: Track, joint: str | int) -> tuple[np.ndarray, str]:
     """(T, 3) world positions of one joint, and its name for the title."""
     if isinstance(track, Motion):

@@ -213,3 +213,26 @@ def test_train_prior_defaults_are_the_configs_defaults():
     assert model.skip_channels == 2 * model.channels
     for key, value in TRAIN_DEFAULTS.items():
         assert getattr(train if hasattr(train, key) else model, key) == value, key
+
+
+def test_score_copies_lists_every_degraded_copy(capsys, ckpt):
+    report = score_json(capsys, DATA / CMU_60, ckpt, "--copies")
+    assert set(report["copies"]) == {"noise 1 cm", "low-pass 2 Hz", "low-pass 1 Hz", "frozen", "half speed",
+                                     "double speed"}
+    assert all(isinstance(v, float) for v in report["copies"].values())
+    rc, out, _ = run(capsys, "score", DATA / CMU_60, "--prior", ckpt, "--copies")
+    assert rc == 0 and out.count("nats per frame:") == 6
+
+
+@pytest.mark.parametrize("clip", ["bandai2/dataset-2_walk_normal_002.bvh", "bandai2/dataset-2_run_active_002.bvh",
+                                  "bandai/dataset-1_walk-left_feminine_001.bvh"])
+def test_shipped_bandai_prior_ranks_held_out_capture_above_its_degraded_copies(capsys, clip):
+    """Issue 21's first test on clips the shipped prior held out (needs ../shared/data)."""
+    from clips import SHARED
+
+    if not (SHARED / clip).exists():
+        pytest.skip(f"needs {SHARED / clip}")
+    report = score_json(capsys, SHARED / clip, "bandai-locomotion-ccnet.pt", "--copies")
+    assert clip in read_checkpoint(CHECKPOINT_DIR / "bandai-locomotion-ccnet.pt")["metadata"]["validation_clips"]
+    worse = {k: v for k, v in report["copies"].items() if v <= report["copy_scored_nll_per_frame"]}
+    assert not worse, f"scored as natural as the clip or more: {worse}"

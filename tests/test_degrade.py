@@ -74,3 +74,4 @@ def test_ranking_loss_raises_degraded_copies_above_real_windows():
                    for s in range(5)) / 5
 
     assert shortfall_after(1.0) < 0.75 * shortfall_after(0.0)
+

@@ -120,6 +120,18 @@ def test_root_paths_against_a_target(walk, tmp_path):
         P.plot_root_paths({"walk": np.zeros((5, 4))}, tmp_path / "bad.png")
 
 
+def test_path_follow_picture_shows_path_feet_poses_and_heights(walk, tmp_path):
+    hips = walk.positions()[:, P.body_root(walk.skeleton)]
+    target = hips[20::5][:, [0, 2]]
+    out = P.plot_path_follow(walk, tmp_path / "pf.png", target, new_from=20)
+    img = _rgb(out)
+    for colour in (P.LEFT_COLOR, P.RIGHT_COLOR, P.CONTACT_COLOR, "#ff7f0e"):  # poses, planted feet, foot tracks
+        assert _has_colour(img, colour)
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        P.plot_path_follow(walk, tmp_path / "bad.png", np.zeros((1, 2)))
+    assert not (tmp_path / "bad.png").exists()
+
+
 def test_joint_trajectories_noisy_against_clean(walk, tmp_path):
     rng = np.random.default_rng(0)
     j = walk.skeleton.index("Hand_L")

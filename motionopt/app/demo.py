@@ -122,8 +122,8 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     np.savetxt(out / "path.csv", path, delimiter=",", header="x,z", comments="", fmt="%.4f")
     res = PathFollow(seed, path, walk_prior).solve()
     bvh.save(res.motion, out / "path-follow.bvh", force=True)
-    plot.plot_root_paths({"output": res.motion, "seed": seed}, out / "path-follow.png", target=path,
-                         title="Path following: root path against the drawn path", force=True)
+    plot.plot_path_follow(res.motion, out / "path-follow.png", path, new_from=seed.num_frames - 1,
+                          title="Path following: the walk continued along the drawn path", force=True)
     _write_report(out / "path-follow.json", res, {"task": "path-follow", "seed": "walk.bvh frames 0-29"})
     step("path following", "the generated walk continued along a 90-degree left curve",
          ["path-follow.bvh", "path.csv", "path-follow.png"],

@@ -106,12 +106,51 @@ def _filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
     filmstrip({"input": motion, "output": result.motion}, out)
 
 
-def _root_paths(task: Task, seed: Motion, result, out: Path) -> None:
-    """The root's path over the ground against the target path."""
+def _path_picture(task: Task, seed: Motion, result, out: Path) -> None:
+    """From above: the target path, the root, the feet (planted frames marked) and a few
+    poses of the new frames; beside it the hip and lowest foot heights over time."""
     from motionopt import plot
 
-    plot.plot_root_paths({"output": result.motion, "seed": seed}, out, target=task.path,
-                         title="Root path and target path", force=True)
+    plot.plot_path_follow(result.motion, out, task.path, new_from=min(seed.num_frames, result.motion.num_frames) - 1,
+                          title="Path following: the seed continued along the target path", force=True)
+
+
+def _frames_around(first: int, last: int, n_frames: int, count: int = 6) -> list[int]:
+    """``count`` frame numbers from the frame before ``first`` to the frame after ``last``
+    (inside 0..n_frames-1): the frames a task changed, with one unchanged on each side."""
+    import numpy as np
+
+    a, b = max(0, first - 1), min(n_frames - 1, last + 1)
+    return np.unique(np.linspace(a, b, min(count, b - a + 1)).round().astype(int)).tolist()
+
+
+def _gap_filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
+    """Input over output at the frames of the longest gap between kept ranges (and the
+    kept frame on each side of it), where the output is synthesised."""
+    from motionopt import plot
+
+    n = max(motion.num_frames, result.motion.num_frames)
+    gaps = [(stop, start) for (_, stop), (start, _) in zip(task.keep, task.keep[1:])]
+    if result.motion.num_frames > task.keep[-1][1]:
+        gaps.append((task.keep[-1][1], result.motion.num_frames))
+    if not gaps:
+        return filmstrip({"input": motion, "output": result.motion}, out)
+    a, b = max(gaps, key=lambda g: g[1] - g[0])
+    rows = {"input (frames replaced)": motion, "output": result.motion}
+    plot.plot_filmstrip(rows, out, frames=_frames_around(a, b - 1, n), force=True,
+                        title=f"In-betweening: frames {a}-{b - 1} synthesised; input (top) and output")
+
+
+def _edit_filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
+    """Input over output at the edited frames (the targets' frames, and one on each side)."""
+    from motionopt import plot
+
+    first = min(t.frames[0] for t in task.targets)
+    last = max(t.frames[1] for t in task.targets)
+    joints = ", ".join(sorted({t.joint for t in task.targets}))
+    plot.plot_filmstrip({"input": motion, "output": result.motion}, out,
+                        frames=_frames_around(first, last, min(motion.num_frames, result.motion.num_frames)),
+                        force=True, title=f"Spatial edit of {joints} at frames {first}-{last}: input (top) and output")
 
 
 def _foot_trajectory(task: Task, motion: Motion, result, out: Path) -> None:
@@ -246,7 +285,7 @@ TASKS: dict[str, TaskEntry] = {
         build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
             seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine,
             path_name=a.path),
-        draw=_root_paths, marks=lambda task, motion: {"path": task.path}),
+        draw=_path_picture, marks=lambda task, motion: {"path": task.path}),
     "denoise": TaskEntry(
         help="clean captured motion: remove jitter, foot sliding and ground penetration",
         description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
@@ -261,7 +300,8 @@ TASKS: dict[str, TaskEntry] = {
     "inbetween": TaskEntry(
         help="fill the frames between kept frame ranges",
         description="Keep the frames inside --keep exactly and synthesise the frames between them so that each "
-        "gap meets the next kept frames without a jump. --plot draws a filmstrip of output and input.",
+        "gap meets the next kept frames without a jump. --plot draws input over output at the frames of the longest "
+        "gap.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose kept frames are used"),
             arg("--keep", required=True, metavar="RANGES",
@@ -271,6 +311,7 @@ TASKS: dict[str, TaskEntry] = {
         read=_kept_ranges,
         build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
             motion, keep, prior, refine=a.refine, clean_feet=a.clean_feet),
+        draw=_gap_filmstrip,
         latent=lambda a, keep, motion, prior: _problems().latent.LatentTask(motion, prior, keep)),
     "complete": TaskEntry(
         help="continue the first frames of a motion (prefix completion)",
@@ -290,7 +331,7 @@ TASKS: dict[str, TaskEntry] = {
         help="move chosen joints to targets at chosen frames (spatial edit)",
         description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or [I, J], "
         "\"position\": [x, y, z] (metres, world) or \"offset\": [dx, dy, dz]}, while the rest of the motion stays "
-        "close to the input and natural. --plot draws a filmstrip of output and input. (--method latent is not "
+        "close to the input and natural. --plot draws input over output at the edited frames. (--method latent is not "
         "available for spatial edits yet.)",
         arguments=(arg("input", metavar="INPUT.bvh", help="motion to edit"),
                    arg("--targets", required=True, metavar="TARGETS.json", help="joint targets")),
@@ -299,7 +340,7 @@ TASKS: dict[str, TaskEntry] = {
                                                                              refine=a.refine),
         latent_refused="spatial edits with the latent prior are not available (problems/latent.py has no spatial "
         "edit); use --method ar, the default",
-        marks=_target_points, new_frames=False),
+        draw=_edit_filmstrip, marks=_target_points, new_frames=False),
 }
 
 
