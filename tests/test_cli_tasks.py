@@ -356,7 +356,7 @@ def test_read_path_csv_columns_times_and_line_numbers(tmp_path):
 
 
 #: The options the README says every task takes.
-COMMON = ("--prior", "--seed", "--report", "--plot", "--force", "--fps", "--unit", "--quiet", "--verbose")
+COMMON = ("--prior", "--seed", "--report", "--plot", "--view", "--force", "--fps", "--unit", "--quiet", "--verbose")
 
 
 @pytest.mark.parametrize("command", ("fuse", "latent-edit", "vary", "interpolate"))

@@ -244,8 +244,9 @@ def test_commands_take_the_common_task_options(trained, tmp_path, capsys):
             "interpolate": [a, b, "--steps", "2", "--out-dir", tmp_path / "i"]}
     for command, argv in runs.items():
         report = tmp_path / f"{command}.json"
+        page = tmp_path / f"{command}.html"
         argv = [command, *map(str, argv), "--prior", ckpt, "--seed", "3", "--plot", "--report", str(report),
-                "--unit", "cm", "-q"]
+                "--view", str(page), "--unit", "cm", "-q"]
         assert main(argv) == 0, capsys.readouterr().err
         rep = json.loads(report.read_text())
         assert rep["task"] == command and rep["prior"] == ckpt and len(rep["outputs"]) == (2 if "--out-dir" in argv
@@ -253,6 +254,8 @@ def test_commands_take_the_common_task_options(trained, tmp_path, capsys):
         for out in rep["outputs"]:
             assert bvh.load(out["output"]).num_frames > 0
             assert Path(out["picture"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        html = page.read_text()
+        assert html.count('"name":') >= len(rep["outputs"]) + (2 if command in ("fuse", "interpolate") else 1)
         again = build_parser().parse_args(shlex.split(rep["command"])[1:])
         assert again.command == command and again.seed == 3 and again.plot
         assert main(argv) == 1 and "pass --force" in capsys.readouterr().err  # nothing is overwritten

@@ -11,7 +11,7 @@ from pathlib import Path
 from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
 from .tasks import (add_io_options, add_prior_options, check_paths, command_line, filmstrip, json_text, load_input,
-                    load_prior, report_output, use_threads, write_json)
+                    load_prior, report_output, use_threads, view_output, write_json)
 
 
 def register(sub) -> None:
@@ -131,6 +131,7 @@ class LatentRun:
     bvhs: list[Path]
     pictures: list[Path]
     report: Path | None
+    view: Path | None
     started: float
 
 
@@ -153,11 +154,12 @@ def _start(args: argparse.Namespace, names: tuple[str, ...], stems: list[str]) -
             raise UserError(f"--out {bvhs[0]}: the output must be a .bvh file")
     pictures = [b.with_suffix(".png") for b in bvhs] if args.plot else []
     report = report_output(args)
-    check_paths([report] if new_folder else [*bvhs, *pictures, report], inputs, args.force)
+    view = view_output(args)
+    check_paths([report, view] if new_folder else [*bvhs, *pictures, report, view], inputs, args.force)
     use_threads(args)
     motions = [load_input(args, path) for path in inputs]
     prior, prior_path = load_prior(motions[0], args, "LatentPrior")
-    return LatentRun(args, names, motions, prior, prior_path, bvhs, pictures, report, started)
+    return LatentRun(args, names, motions, prior, prior_path, bvhs, pictures, report, view, started)
 
 
 def _finish(run: LatentRun, results: list, label: str) -> int:
@@ -173,6 +175,12 @@ def _finish(run: LatentRun, results: list, label: str) -> int:
     rows = {n.upper() if len(run.names) > 1 else n: m for n, m in zip(run.names, run.motions)}
     for result, picture in zip(results, run.pictures):
         filmstrip({**rows, label: result.motion}, picture)
+    if run.view is not None:
+        from motionopt.view import write_view
+
+        outs = {f"{label} {i}" if len(results) > 1 else label: r.motion for i, r in enumerate(results)}
+        write_view(run.view, {**rows, **outs}, overlay=len(rows) == 1 and len(outs) == 1, force=True,
+                   title=f"{args.command}: {', '.join(str(getattr(args, n)) for n in run.names)}")
     outputs = [{"output": str(p), "picture": str(run.pictures[i]) if run.pictures else None, **r.report()}
                for i, (r, p) in enumerate(zip(results, run.bvhs))]
     if run.report is not None:
@@ -187,7 +195,7 @@ def _finish(run: LatentRun, results: list, label: str) -> int:
                 f", objective {out['objective_start']:.4g} -> {out['objective']:.4g} in {out['nit']} iterations"
             print(f"wrote {out['output']} ({out['frames']} frames at {out['fps']:g} fps, {out['windows']} windows, "
                   f"{out['timings'].get('total', 0):.2f} s{extra})")
-        for path in filter(None, (*run.pictures, run.report)):
+        for path in filter(None, (*run.pictures, run.view, run.report)):
             print(f"wrote {path}")
     return 0
 

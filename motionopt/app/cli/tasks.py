@@ -360,9 +360,6 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
 
     io = add_io_options(p, "BVH file to write, with the input's skeleton, channels, unit and frame rate",
                         report="write the solver's per-term values, the task's metrics, timings and the command")
-    io.add_argument("--view", default=None, metavar="VIEW.html",
-                    help="also write an interactive 3-D page of input and output, with the task's targets and "
-                    "per-frame curves of its measures (open it in a web browser; it works offline)")
     s = p.add_argument_group("prior and solver")
     if method:
         s.add_argument("--method", choices=METHODS, default="ar",
@@ -406,6 +403,9 @@ def add_io_options(p: argparse.ArgumentParser, out: str, report: str, out_dir: b
     io.add_argument("--plot", action="store_true",
                     help="also draw a picture next to each BVH file written (OUT.png next to OUT.bvh): a filmstrip "
                     "of input over output, or the task's own picture")
+    io.add_argument("--view", default=None, metavar="VIEW.html",
+                    help="also write an interactive 3-D page of input and output, with the task's targets and "
+                    "per-frame curves of its measures (open it in a web browser; it works offline)")
     io.add_argument("--force", action="store_true", help="overwrite the outputs if they exist")
     io.add_argument("--fps", type=_positive(float), default=None,
                     help="override the input file's frame rate (its header's Frame Time)")
@@ -494,15 +494,21 @@ def _method(args: argparse.Namespace) -> str:
     return getattr(args, "method", "ar")
 
 
+def view_output(args: argparse.Namespace) -> Path | None:
+    """The --view page's path, checked to be an .html file (None without --view)."""
+    view = Path(args.view) if args.view else None
+    if view is not None and view.suffix.lower() != ".html":
+        raise UserError(f"--view {view}: the page must be an .html file")
+    return view
+
+
 def check_outputs(args: argparse.Namespace) -> Outputs:
     """Every output path, checked before any work: suffix, folder, not the input, new or --force."""
     out = Path(args.out)
     if out.suffix.lower() != ".bvh":
         raise UserError(f"--out {out}: the output must be a .bvh file")
     report = report_output(args)
-    view = Path(args.view) if args.view else None
-    if view is not None and view.suffix.lower() != ".html":
-        raise UserError(f"--view {view}: the page must be an .html file")
+    view = view_output(args)
     picture = out.with_suffix(".png") if args.plot else None
     check_paths([out, report, picture, view], [args.input], args.force)
     return Outputs(out, report, picture, view)
