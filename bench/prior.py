@@ -418,8 +418,9 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
         lines += [table(rows), ""] if k == 0 else []
         lines += [f"joint speed ratio over all {len(ratios)} windows: min {min(ratios):.2f}, max {max(ratios):.2f}, "
                   f"{inside}/{len(ratios)} inside 0.3..3",
-                  f"foot skating: rollouts {statistics.mean(skates):.3f} m/s, held-out data {data_skate:.3f} m/s, "
-                  f"ratio {statistics.mean(skates) / data_skate:.2f} (target <= 2)", ""]
+                  f"foot skating: rollouts {calibration.finite_mean(skates):.3f} m/s, held-out data {data_skate:.3f} "
+                  f"m/s, ratio {calibration.finite_mean(skates) / data_skate:.2f} (target <= 2); "
+                  f"{sum(math.isnan(k) for k in skates)} of {len(skates)} rollouts never plant a foot", ""]
 
     # 3b. a minute of motion, per segment
     lines += minute_of_motion(prior, clips, prior.sample_temperature, seconds)
