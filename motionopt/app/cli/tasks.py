@@ -358,8 +358,8 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     it synthesises frames (where the particle swarm works)."""
     from motionopt.solver import OPTIMIZERS, PSOOptions, SolverOptions
 
-    io = add_io_options(p, "BVH file to write, with the input's skeleton, channels, unit and frame rate",
-                        report="write the solver's per-term values, the task's metrics, timings and the command")
+    add_io_options(p, "BVH file to write, with the input's skeleton, channels, unit and frame rate",
+                   report="write the solver's per-term values, the task's metrics, timings and the command")
     s = p.add_argument_group("prior and solver")
     if method:
         s.add_argument("--method", choices=METHODS, default="ar",
