@@ -232,13 +232,10 @@ class HumanRange:
     @classmethod
     def of(cls, prior, clips: list[Clip]) -> "HumanRange":
         cidx = prior.spec.contact_indices()
-        hips, lowest = [], []
-        for c in clips:
-            pos = torch.from_numpy(c.motion.positions())
-            hips.append(pos[:, 0, 1] - c.start.ground)
-            lowest.append(pos[:, cidx, 1].min(-1).values - c.start.ground)
-        hip = torch.cat(hips)
-        speed, skate = data_reference(prior, clips)
+        positions = [torch.from_numpy(c.motion.positions()) for c in clips]
+        hip = torch.cat([pos[:, 0, 1] - c.start.ground for c, pos in zip(clips, positions)])
+        lowest = [pos[:, cidx, 1].min(-1).values - c.start.ground for c, pos in zip(clips, positions)]
+        speed, skate = calibration.data_reference(prior, positions)
         return cls(float(hip.quantile(0.01)), float(hip.quantile(0.99)), float(torch.cat(lowest).quantile(0.05)),
                    speed, skate)
 

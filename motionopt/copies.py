@@ -8,7 +8,7 @@ each of the same length as the motion it is made from (where the source allows).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.signal import butter, filtfilt
@@ -45,15 +45,25 @@ def retimed(motion: Motion, factor: float) -> Motion:
     return replace(motion.resample(motion.fps / factor), fps=motion.fps)
 
 
-#: The copies a prior must score worse than the motion, by name: how each is made from
-#: the whole motion, and where a window starting at frame ``s`` of the motion lies in it.
-COPIES: dict[str, tuple[Callable[[Motion], Motion], Callable[[int], int]]] = {
-    "noise 1 cm": (lambda m: position_noise(m, 0.01, seed=1)[0], lambda s: s),
-    "low-pass 2 Hz": (lambda m: low_passed(m, 2.0), lambda s: s),
-    "low-pass 1 Hz": (lambda m: low_passed(m, 1.0), lambda s: s),
-    "frozen": (lambda m: m, lambda s: s),  # the window's first frame, held: see window_copies
-    "half speed": (lambda m: retimed(m, 0.5), lambda s: 2 * s),
-    "double speed": (lambda m: retimed(m, 2.0), lambda s: s // 2),
+@dataclass(frozen=True)
+class Copy:
+    """How one kind of copy is made: ``whole`` turns the whole motion into that copy, ``at``
+    says where a window starting at frame ``s`` of the motion begins in it, and ``window``
+    finishes the window cut from it."""
+
+    whole: Callable[[Motion], Motion]
+    at: Callable[[int], int] = lambda s: s
+    window: Callable[[Motion], Motion] = lambda m: m
+
+
+#: The copies a prior must score worse than the motion, by name.
+COPIES: dict[str, Copy] = {
+    "noise 1 cm": Copy(lambda m: position_noise(m, 0.01, seed=1)[0]),
+    "low-pass 2 Hz": Copy(lambda m: low_passed(m, 2.0)),
+    "low-pass 1 Hz": Copy(lambda m: low_passed(m, 1.0)),
+    "frozen": Copy(lambda m: m, window=frozen),  # the window's own first frame, held
+    "half speed": Copy(lambda m: retimed(m, 0.5), at=lambda s: 2 * s),
+    "double speed": Copy(lambda m: retimed(m, 2.0), at=lambda s: s // 2),
 }
 
 
@@ -61,10 +71,5 @@ def window_copies(motion: Motion, starts: list[int], length: int) -> list[dict[s
     """For each window ``motion[s:s + length]``, its copy of every kind in ``COPIES``, each
     cut from that copy of the whole motion (so a low-pass has no edge at the window's
     start, and a double-speed window covers twice the time, where the motion has it)."""
-    whole = {name: make(motion) for name, (make, _) in COPIES.items() if name != "frozen"}
-    out = []
-    for s in starts:
-        window = {name: whole[name][at(s):at(s) + length] for name, (_, at) in COPIES.items() if name != "frozen"}
-        window["frozen"] = frozen(motion[s:s + length])
-        out.append({name: window[name] for name in COPIES})
-    return out
+    whole = {name: c.whole(motion) for name, c in COPIES.items()}
+    return [{name: c.window(whole[name][c.at(s):c.at(s) + length]) for name, c in COPIES.items()} for s in starts]

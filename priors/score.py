@@ -33,16 +33,20 @@ class ScoreReport:
                 "worst": [{"start": a, "stop": b, "nll_per_frame": v} for a, b, v in self.worst]}
 
 
-def checked_features(prior, motion: Motion) -> torch.Tensor:
-    """Normalised features (T, D) of any motion for ``prior`` (resampled, joints selected),
-    after checking that its skeleton is the prior's (``CheckpointError`` says how not)."""
+def checked_model_motion(prior, motion: Motion) -> Motion:
+    """Any motion on ``prior``'s joints at its rate (resampled, joints selected), after
+    checking that its skeleton is the prior's (``CheckpointError`` says how not)."""
     check_compatible(prior.spec, motion.skeleton)
-    codec = Codec.of(prior)
-    model = codec.model_motion(motion)
+    model = Codec.of(prior).model_motion(motion)
     if not model.skeleton.same_hierarchy(prior.skeleton):
         raise CheckpointError("the motion's joints have the prior's names but another hierarchy (parents "
                               "differ); use a prior trained on this skeleton (`motionopt train-prior`)")
-    return codec.features(model)
+    return model
+
+
+def checked_features(prior, motion: Motion) -> torch.Tensor:
+    """Normalised features (T, D) of any motion for ``prior`` (``checked_model_motion``)."""
+    return Codec.of(prior).features(checked_model_motion(prior, motion))
 
 
 @torch.no_grad()
@@ -70,16 +74,13 @@ def score_motion(prior, motion: Motion, window_seconds: float = 1.0, n_worst: in
 
 @dataclass
 class CopyVerdict:
-    """NLL per frame of one window of a motion and of each of its degraded copies
-    (``motionopt.copies``), and whether the window scores better than each."""
+    """NLL per frame of one window of a motion (``start``, ``frames`` at the prior's rate)
+    and of each of its degraded copies (``motionopt.copies``)."""
 
     start: int
     frames: int
     real: float
     copies: dict[str, float]
-
-    def wins(self) -> dict[str, bool]:
-        return {name: self.real < v for name, v in self.copies.items()}
 
 
 @torch.no_grad()
@@ -89,8 +90,7 @@ def copy_verdicts(prior, motion: Motion, window_seconds: float | None = 4.0, str
     ``stride_seconds``, default the window; None: the whole clip as one window) against
     its degraded copies. Heights of every copy are measured from the motion's ground."""
     codec = Codec.of(prior)
-    checked_features(prior, motion)
-    model = codec.model_motion(motion)
+    model = checked_model_motion(prior, motion)
     ground = estimate_ground(model.positions(), prior.spec.contact_indices())
     n = model.num_frames if window_seconds is None else int(round(window_seconds * prior.spec.fps))
     step = n if stride_seconds is None else int(round(stride_seconds * prior.spec.fps))
