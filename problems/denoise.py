@@ -18,6 +18,10 @@ from motionopt.solver import Problem, SolverOptions, solve
 
 from .common import Prepared, TaskResult, TermSigmas, plant_feet, prepare, standard_terms
 
+#: Sigma (m/s^2) of the joint accelerations in the denoising objective: 15-20 gave the
+#: lowest error on held-out clips at 3 cm noise, 10 and 30 a few per cent more.
+DENOISE_SMOOTHNESS = 20.0
+
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
 
@@ -98,35 +102,42 @@ class DenoiseSetup:
 
 @dataclass
 class Denoise:
-    """Remove capture noise from ``motion``.
+    """Remove capture noise from ``motion``: a MAP solve under the prior, started from a
+    per-joint filter.
 
     The noise level is estimated from the clip's high-frequency energy
     (``estimate_noise``); each joint is smoothed by the Butterworth or Savitzky-Golay
     filter of least estimated risk for that level (``low_pass``; ``cutoff_hz`` forces one
-    Butterworth cutoff for all).
+    Butterworth cutoff for all). With ``refine`` (the default) the MAP solver then starts
+    from that filtered motion and trades fidelity to the noisy input (``sigma_root`` m,
+    ``sigma_angle`` rad; default: the estimated noise) against the prior (times
+    ``prior_weight``), the contact terms and joint accelerations (``sigmas.smoothness``,
+    m/s^2); ``setup`` builds that objective and problem. Without ``refine`` the filter's
+    output is the result.
+
+    Why these terms (bench/tasks.py, held-out clips, 3 cm noise, 30 L-BFGS iterations per
+    window): the prior with fidelity and contacts alone left the result further from the
+    clean clips than the filter (Bandai 1.27 cm against 1.20), and from the clean clip
+    itself the solver drifted to 1.1 cm: the prior tolerates jerky joints. With the
+    acceleration term the solve reaches 1.10 cm on Bandai and 0.98 cm on CMU (best
+    Butterworth 1.23 and 1.30). The prior at half weight is what the acceleration term
+    alone reached, within 1-3%: the figures in bench/results/ report both.
+
     With ``clean_feet`` the foot contacts the prior predicts are then planted by leg IK:
     no sliding, at a cost in fidelity (the IK moves planted feet to where they stand on
     average, centimetres on real captures), so it is off by default.
-
-    With ``refine`` the MAP solver then trades fidelity to the noisy input (``sigma_root``
-    m, ``sigma_angle`` rad; default: the estimated noise) against the prior and the
-    contact terms, starting from the filtered motion (``setup`` builds that objective and
-    problem). It is off by default: with the shipped priors it still moves the result a
-    little further from clean captures than the filter (3 held-out Bandai clips at 3 cm:
-    1.37 cm against 1.20 cm, with foot skating at the clean clips' level), and the
-    energy at the clean clip is lower than at the result, so the search, not only the
-    prior, falls short (bench/tasks.py reports both and the energies).
     """
 
     motion: Motion
     prior: object
     sigma_root: float | None = None
     sigma_angle: float | None = None
-    sigmas: TermSigmas = field(default_factory=TermSigmas)
+    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(smoothness=DENOISE_SMOOTHNESS))
     options: SolverOptions = field(default_factory=lambda: SolverOptions(pso=None))
     cutoff_hz: float | None = None
     clean_feet: bool = False
-    refine: bool = False
+    refine: bool = True
+    prior_weight: float = 0.5
     prior_min_log_std: float | None = -2.5
 
     def __post_init__(self) -> None:
@@ -134,6 +145,8 @@ class Denoise:
             v = getattr(self, name)
             if v is not None and not v > 0:
                 raise ValueError(f"{name} must be positive, got {v}")
+        if not self.prior_weight >= 0:
+            raise ValueError(f"prior_weight must be 0 or more, got {self.prior_weight}")
 
     def setup(self) -> DenoiseSetup:
         """The input as the prior sees it, its filtered copy (the solver's start), and the
@@ -152,9 +165,10 @@ class Denoise:
         start = prepare(filtered, prior)
         fidelity = PoseFidelityTerm(prep.model.root, prep.model.rotations, sigma_root, sigma_angle, name="fidelity")
         objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, self.sigmas),
-                                 prior_min_log_std=self.prior_min_log_std)
+                                 prior_weight=self.prior_weight, prior_min_log_std=self.prior_min_log_std)
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
-                    "refine": self.refine, "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
+                    "refine": self.refine, "prior_weight": self.prior_weight,
+                    "smoothness_sigma": self.sigmas.smoothness, "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
                     "smoothers": smoothers}
         return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
                             settings)

@@ -17,7 +17,7 @@ def register(sub) -> None:
         description="Run TASK (the command of the same name) on every .bvh file under --in, mirroring the "
         "folders under --out: IN/a/take.bvh gives OUT/a/take.bvh and its report OUT/a/take.json. Any other "
         "option is passed to every run of the task (see motionopt TASK --help), e.g. "
-        "`motionopt batch denoise --in takes --out clean --refine`. A file that fails is recorded with its "
+        "`motionopt batch denoise --in takes --out clean --no-refine`. A file that fails is recorded with its "
         "error and the batch goes on. OUT/batch-summary.csv and .json list every file's status, error, "
         "metrics and time. OUT/batch-manifest.jsonl records each finished file as it finishes: rerunning the "
         "same command skips the files that are complete and unchanged and redoes the others (interrupted or "

@@ -283,17 +283,17 @@ TASKS: dict[str, TaskEntry] = {
                 "t column")),
         read=_read_path,
         build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
-            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine,
+            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=bool(a.refine),
             path_name=a.path),
         draw=_path_picture, marks=lambda task, motion: {"path": task.path}),
     "denoise": TaskEntry(
         help="clean captured motion: remove jitter, foot sliding and ground penetration",
-        description="Estimate the capture noise in the clip and smooth each joint with the Butterworth or "
-        "Savitzky-Golay filter of least estimated risk for it. --clean-feet then plants the feet by leg IK. "
-        "--refine then adds the MAP solve: fidelity to the input's root and joint angles, the prior and contact "
-        "terms. --plot draws a foot's trajectory before and after.",
+        description="Estimate the capture noise in the clip, smooth each joint with the Butterworth or "
+        "Savitzky-Golay filter of least estimated risk for it, then run the MAP solve from there: fidelity to the "
+        "input's root and joint angles, the prior, contact terms and joint accelerations (--no-refine: the filter "
+        "alone). --clean-feet then plants the feet by leg IK. --plot draws a foot's trajectory before and after.",
         arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET),
-        build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine,
+        build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
                                                                       clean_feet=a.clean_feet),
         latent=lambda a, _, motion, prior: _problems().latent.LatentTask(motion, prior),
         draw=_foot_trajectory, new_frames=False),
@@ -310,7 +310,7 @@ TASKS: dict[str, TaskEntry] = {
             CLEAN_FEET),
         read=_kept_ranges,
         build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
-            motion, keep, prior, refine=a.refine, clean_feet=a.clean_feet),
+            motion, keep, prior, refine=bool(a.refine), clean_feet=a.clean_feet),
         draw=_gap_filmstrip,
         latent=lambda a, keep, motion, prior: _problems().latent.LatentTask(motion, prior, keep)),
     "complete": TaskEntry(
@@ -324,7 +324,7 @@ TASKS: dict[str, TaskEntry] = {
                 help="frames of the output, prefix included"),
             CLEAN_FEET),
         build=lambda a, _, motion, prior: _problems().inbetween.complete(
-            motion, a.prefix, a.frames, prior, refine=a.refine, clean_feet=a.clean_feet),
+            motion, a.prefix, a.frames, prior, refine=bool(a.refine), clean_feet=a.clean_feet),
         latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(motion, a.prefix, a.frames,
                                                                                     prior)),
     "edit": TaskEntry(
@@ -337,7 +337,7 @@ TASKS: dict[str, TaskEntry] = {
                    arg("--targets", required=True, metavar="TARGETS.json", help="joint targets")),
         read=lambda a, motion: _problems().edit.load_targets(a.targets),
         build=lambda a, targets, motion, prior: _problems().edit.SpatialEdit(motion, targets, prior,
-                                                                             refine=a.refine),
+                                                                             refine=bool(a.refine)),
         latent_refused="spatial edits with the latent prior are not available (problems/latent.py has no spatial "
         "edit); use --method ar, the default",
         draw=_edit_filmstrip, marks=_target_points, new_frames=False),
@@ -366,10 +366,11 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
                        help="ar: MAP optimisation under the autoregressive prior (default); latent: inversion "
                        "of the latent (W+) prior")
     add_prior_options(s)
-    s.add_argument("--refine", action="store_true",
-                   help="polish the result with the MAP solver (prior, task and contact terms; windows of "
-                   "34 frames, L-BFGS); off by default because with the shipped priors it does not improve "
-                   "the benchmark figures (bench/results/tasks.txt)")
+    s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
+                   "task's result: on by default for denoise (--no-refine: the filter alone), off by default for "
+                   "the others, where with the shipped priors it does not improve the benchmark figures "
+                   "(bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
