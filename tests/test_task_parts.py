@@ -169,3 +169,49 @@ def test_a_change_from_the_prior_carries_over_to_the_files_skeleton_and_rate():
     raised = model.with_frames(model.rotations, model.root + np.array([0.0, 0.1, 0.0]))
     moved = with_change(clip, model, raised)
     assert np.allclose(moved.positions() - clip.positions(), [0.0, 0.1, 0.0], atol=1e-4)
+
+
+def test_denoise_by_default_solves_under_the_prior_and_beats_the_filter_it_starts_from():
+    """The default denoising runs the MAP solve from the per-joint filter: on a real walk
+    the prior never saw, with 3 cm of rotation noise it ends nearer the clean clip than the filter alone
+    (--no-refine), with less foot sliding, and its report shows the solve."""
+    from motionopt.metrics import foot_skating
+    from motionopt.noise import position_noise
+    from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
+    from problems.denoise import Denoise
+
+    from clips import shared_excerpt
+    prior = load_prior_cached(CHECKPOINT_DIR / "bandai-locomotion-ccnet.pt")   # a clip it never saw
+    clean = to_model_motion(shared_excerpt("bandai/dataset-1_walk-left_feminine_001.bvh", 0, 90), prior.spec)
+    noisy, _ = position_noise(clean, 0.03, seed=1)
+    ours, filtered = Denoise(noisy, prior).solve(), Denoise(noisy, prior, refine=False).solve()
+    assert filtered.solver is None and ours.solver is not None and "solver" in ours.report()
+
+    def err(m) -> float:
+        return float(np.linalg.norm(m.positions() - clean.positions(), axis=-1).mean())
+
+    def skate(m) -> float:
+        return float(foot_skating(torch.from_numpy(m.positions()), prior.spec.fps, prior.spec.contact_indices()))
+
+    assert err(ours.model_motion) < 0.97 * err(filtered.model_motion)
+    assert skate(ours.model_motion) < skate(filtered.model_motion)
+
+
+def test_a_glitch_turns_one_joint_about_its_main_axis_for_the_frames_asked(walk):
+    from motionopt.noise import glitch, main_axis
+
+    _, m = walk
+    knee = 5
+    g = glitch(m, knee, 10, 8, 30.0)
+    angle = R.quat_angle(torch.from_numpy(m.rotations), torch.from_numpy(g.rotations)).numpy()
+    assert np.allclose(angle[10:18, knee], np.radians(30.0), atol=1e-5)
+    angle[10:18, knee] = 0.0
+    assert np.abs(angle).max() < 1e-5 and np.array_equal(g.root, m.root)
+    # a joint swung about one axis: that axis is its main one
+    axis = np.array([0.6, 0.0, 0.8])
+    swing = np.sin(np.linspace(0, 6, m.num_frames))[:, None] * axis
+    q = m.rotations.copy()
+    q[:, knee] = R.axis_angle_to_quat(torch.from_numpy(swing)).numpy()
+    assert abs(np.dot(main_axis(m.with_frames(q, m.root, m.translations), knee), axis)) > 0.999
+    with pytest.raises(ValueError, match="outside"):
+        glitch(m, knee, m.num_frames - 2, 8)
