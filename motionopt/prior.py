@@ -55,6 +55,12 @@ class MotionPrior(Protocol):
         (..., T, P)``, when given, replaces the predicted log-std: a local solve holds it
         fixed, so that it cannot lower the energy by making frames less certain."""
 
+    def cache_context(self, context: Tensor) -> object:
+        """What to pass as ``context`` instead of ``context (C, D)`` to ``gaussian`` and
+        ``nll_and_contacts`` when scoring many windows after the same context (the solver's
+        iterations): the context's share of the pass computed once. It has ``shape``, the
+        context's; a prior with nothing to cache returns ``context``."""
+
     def predict_contacts(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         """Probability (..., T, C) that each contact joint touches the ground at each frame."""
 

@@ -18,9 +18,10 @@ from motionopt.solver import Problem, SolverOptions, solve
 
 from .common import Prepared, TaskResult, TermSigmas, plant_feet, prepare, standard_terms
 
-#: Sigma (m/s^2) of the joint accelerations in the denoising objective: 15-20 gave the
-#: lowest error on held-out clips at 3 cm noise, 10 and 30 a few per cent more.
-DENOISE_SMOOTHNESS = 20.0
+#: Sigma (m/s^2) of the joint accelerations in the denoising objective. On held-out Bandai
+#: clips at 3 cm noise: 10 gives 1.09 cm and a jerk 1.15 times the clean clips', 20 gives
+#: 1.10 cm and 1.7 times (and 5 cm noise 1.73 against 1.64 cm), 7 gives 1.15 cm.
+DENOISE_SMOOTHNESS = 10.0
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
@@ -117,11 +118,12 @@ class Denoise:
 
     Why these terms (bench/tasks.py, held-out clips, 3 cm noise, 30 L-BFGS iterations per
     window): the prior with fidelity and contacts alone left the result further from the
-    clean clips than the filter (Bandai 1.27 cm against 1.20), and from the clean clip
-    itself the solver drifted to 1.1 cm: the prior tolerates jerky joints. With the
-    acceleration term the solve reaches 1.10 cm on Bandai and 0.98 cm on CMU (best
-    Butterworth 1.23 and 1.30). The prior at half weight is what the acceleration term
-    alone reached, within 1-3%: the figures in bench/results/ report both.
+    clean clips than the filter (Bandai 1.27 cm against 1.20), and started from the clean
+    clip the solver drifted 1.1 cm away from it: the prior tolerates jerky joints. With the
+    acceleration term the solve reaches 1.09 cm on Bandai and 0.96 cm on CMU (best
+    Butterworth 1.23 and 1.30). Without the prior the same solve reaches 1.09 and 0.98 cm:
+    in 30 iterations the prior adds little; with 100 it reaches 1.04 cm on Bandai, where
+    the solve without it does not move (bench/results/tasks*.txt).
 
     With ``clean_feet`` the foot contacts the prior predicts are then planted by leg IK:
     no sliding, at a cost in fidelity (the IK moves planted feet to where they stand on

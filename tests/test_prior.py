@@ -267,3 +267,17 @@ def test_std_floor_bounds_the_predicted_std_in_feature_units(x, tmp_path):
 
     assert float(raw_std(trained).min()) < 0.01
     assert float(raw_std(loaded).min()) >= 0.01 * (1 - 1e-5)
+
+
+@pytest.mark.parametrize("n_context", [0, 1, 5, 25])
+def test_a_cached_context_gives_the_same_predictions_as_the_context(prior, x, n_context):
+    """The solver scores many iterates after one context: its cached share of the pass
+    (``cache_context``) must predict exactly what the context itself does, batched too."""
+    ctx, window = x[:n_context], x[n_context:n_context + 15]
+    cached = prior.cache_context(ctx)
+    assert cached.shape == ctx.shape
+    for batch in (window, window.expand(3, *window.shape) + 0.1 * torch.randn(3, *window.shape)):
+        for a, b in zip(prior.gaussian(batch, ctx), prior.gaussian(batch, cached)):
+            assert torch.allclose(a, b, atol=1e-5)
+    nll, _ = prior.nll_and_contacts(window, cached)
+    assert torch.allclose(nll, prior.nll(window, ctx), atol=1e-4)

@@ -93,7 +93,7 @@ class Window:
         self.free_np = free_local
         self.free = torch.from_numpy(free_local)
         self.all_free = bool(free_local.all())
-        self.context = context
+        self.context = objective.prior.cache_context(context)   # scored after many times
         self.lead_raw = lead_raw
         self.start = start
         self.p = objective.spec.pose_dim
