@@ -56,7 +56,11 @@ class Inbetween:
     frame numbering), synthesise the rest so that gaps meet the kept frames.
 
     ``n_frames`` (input frame rate) extends the output past the input's end (prefix
-    completion); the kept frames are copied from the input exactly.
+    completion); the kept frames are copied from the input exactly. Without it, ``after``
+    says what becomes of the input's frames after the last kept range: "keep" them as
+    given (the default: nothing outside a gap is synthesised), "drop" them (the output
+    ends with the last kept frame) or "synthesise" them (the prior continues freely, as
+    in prefix completion).
 
     Kept frames too far apart for a person to cover in the gap between them still give the
     best compromise, with ``TaskResult.warnings`` saying so.
@@ -72,6 +76,7 @@ class Inbetween:
     options: SolverOptions = field(default_factory=SolverOptions)
     refine: bool = False
     clean_feet: bool = False
+    after: str = "keep"
     #: Sampling temperature of the rollouts that fill a gap before a kept frame. Low: the
     #: fill should be the likeliest way to the target (held-out LAFAN1-style gaps of 15
     #: frames: NPSS 0.00539 at 0.1 against 0.00580 at 0.3 on CMU, 0.0192 against 0.0199
@@ -84,16 +89,23 @@ class Inbetween:
         self.keep = check_ranges(list(self.keep), self.motion.num_frames)
         if self.n_frames is not None and self.n_frames < self.keep[-1][1]:
             raise ValueError(f"--frames {self.n_frames} is shorter than the kept frames (up to {self.keep[-1][1]})")
+        after_last_range(self.keep, self.motion.num_frames, self.after)   # checks ``after``
+
+    def _ranges_and_length(self) -> tuple[list[tuple[int, int]], int]:
+        """The ranges the output copies from the input and its length (input frames)."""
+        if self.n_frames is not None:
+            return self.keep, self.n_frames
+        return after_last_range(self.keep, self.motion.num_frames, self.after)
 
     def solve(self) -> TaskResult:
         prior = self.prior
         prep = prepare(self.motion, prior)
         warnings = warned(self.gap_warnings(prep))
         fps_o, fps_m = self.motion.fps, prior.spec.fps
-        total_o = self.n_frames or self.motion.num_frames
+        keep, total_o = self._ranges_and_length()
         n = int(np.ceil((total_o - 1) / fps_o * fps_m - 1e-6)) + 1
         n_in = min(len(prep.x), n)
-        kept = model_frames_in(self.keep, fps_o, fps_m, n)
+        kept = model_frames_in(keep, fps_o, fps_m, n)
         kept[n_in:] = False
         t0 = time.perf_counter()
         src = np.minimum(np.arange(n), n_in - 1)
@@ -119,7 +131,7 @@ class Inbetween:
         seconds = time.perf_counter() - t0
         synth = prep.to_file(model)
         keep_o = np.zeros(synth.num_frames, bool)
-        for a, b in self.keep:
+        for a, b in keep:
             keep_o[a:b] = True
         out = splice(synth[:total_o], self.motion, keep_o[:total_o])
         joins = np.nonzero(join)[0]
@@ -127,7 +139,7 @@ class Inbetween:
                    "join_root_error_cm": [float(np.linalg.norm(model.root[j - 1] - prep.model.root[j]) * 100)
                                           for j in joins],
                    "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
-        return TaskResult(out, model, result, metrics, {"keep": self.keep, "frames": total_o,
+        return TaskResult(out, model, result, metrics, {"keep": self.keep, "after": self.after, "frames": total_o,
                                                         "temperature": self.options.temperature_for(prior),
                                                         "gap_temperature": self.gap_temperature,
                                                         "refine": self.refine}, warnings)
@@ -206,6 +218,22 @@ class Inbetween:
             q, r = q[:-1], r[:-1]
         rot[a:a + len(q)], root[a:a + len(q)] = q, r
 
+
+#: What ``Inbetween`` may do with the frames after the last kept range (``after``).
+AFTER_LAST_RANGE = ("keep", "drop", "synthesise")
+
+
+def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> tuple[list[tuple[int, int]], int]:
+    """Checked ranges ``keep`` of an ``n_frames`` input and the output's length, with
+    ``after`` (of ``AFTER_LAST_RANGE``) applied to the frames after the last range: "keep"
+    extends that range to the end, "drop" ends the output there, "synthesise" leaves them
+    to be synthesised."""
+    if after not in AFTER_LAST_RANGE:
+        raise ValueError(f"after must be one of {', '.join(AFTER_LAST_RANGE)}, got {after!r}")
+    keep = check_ranges(list(keep), n_frames)
+    if after == "keep":
+        return [*keep[:-1], (keep[-1][0], n_frames)], n_frames
+    return keep, (keep[-1][1] if after == "drop" else n_frames)
 
 #: Seconds over which a gap's first frames hand over from the kept frames' joint velocities to the prior.
 HANDOFF_SECONDS = 0.25

@@ -204,6 +204,24 @@ def test_inbetween_keeps_the_kept_frames_exactly(capsys, clips, tmp_path):
     assert "frames synthesised" in stdout
 
 
+@pytest.mark.parametrize("after, frames", [("keep", 121), ("drop", 60), ("synthesise", 121)])
+def test_inbetween_keeps_drops_or_synthesises_the_frames_after_the_last_range_as_told(capsys, clips, tmp_path,
+                                                                                     after, frames):
+    needs("cmu-ccnet.pt")
+    out, report = tmp_path / "out.bvh", tmp_path / "r.json"
+    argv = ["--keep", "0:30,45:60", "--out", out, "--report", report, "--quiet", *TINY]
+    rc, _, err = run(capsys, "inbetween", clips["martial"], *argv, *(() if after == "keep" else ("--after", after)))
+    assert rc == 0, err
+    assert_round_trips(out, clips["martial"], frames)
+    tail = slice(60, 121)
+    if after != "drop":
+        same = np.abs(kept_values(out, tail) - kept_values(clips["martial"], tail)).max() < 1e-6
+        assert same == (after == "keep")
+    r = json.loads(report.read_text())
+    assert r["settings"]["after"] == after
+    assert r["metrics"]["synthesised_frames"] == 15 + (61 if after == "synthesise" else 0)
+
+
 def test_complete_keeps_the_prefix_and_is_silent_with_quiet(capsys, clips, tmp_path):
     needs("cmu-ccnet.pt")
     out, report = tmp_path / "out.bvh", tmp_path / "r.json"

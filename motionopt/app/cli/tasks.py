@@ -257,6 +257,13 @@ def _kept_ranges(args: argparse.Namespace, motion: Motion) -> list[tuple[int, in
     return inbetween.check_ranges(inbetween.parse_ranges(args.keep), motion.num_frames)
 
 
+def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], motion: Motion, prior):
+    """In-betweening with the latent prior, --after applied as the autoregressive task applies it."""
+    problems = _problems()
+    ranges, length = problems.inbetween.after_last_range(keep, motion.num_frames, args.after)
+    return problems.latent.LatentTask(motion[:length], prior, ranges)
+
+
 CLEAN_FEET = arg("--clean-feet", action="store_true",
                  help="plant the feet the prior finds in contact by leg IK: less sliding in synthesised frames, not "
                  "none, for joints moved by up to tens of centimetres; on denoised capture it can add sliding (the "
@@ -300,19 +307,23 @@ TASKS: dict[str, TaskEntry] = {
     "inbetween": TaskEntry(
         help="fill the frames between kept frame ranges",
         description="Keep the frames inside --keep exactly and synthesise the frames between them so that each "
-        "gap meets the next kept frames without a jump. --plot draws input over output at the frames of the longest "
+        "gap meets the next kept frames without a jump; the frames after the last kept range are kept as given "
+        "unless --after says otherwise. --plot draws input over output at the frames of the longest "
         "gap.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose kept frames are used"),
             arg("--keep", required=True, metavar="RANGES",
                 help="half-open frame ranges to keep, like Python slices, e.g. 0:30,60:90 (frames 0-29 and 60-89 of "
                 "INPUT.bvh); the first range must start at 0"),
+            arg("--after", choices=("keep", "drop", "synthesise"), default="keep",
+                help="the input's frames after the last kept range: keep them as given (default), drop them (the "
+                "output ends with the last kept frame), or synthesise them (the prior continues freely)"),
             CLEAN_FEET),
         read=_kept_ranges,
         build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
-            motion, keep, prior, refine=bool(a.refine), clean_feet=a.clean_feet),
+            motion, keep, prior, refine=bool(a.refine), clean_feet=a.clean_feet, after=a.after),
         draw=_gap_filmstrip,
-        latent=lambda a, keep, motion, prior: _problems().latent.LatentTask(motion, prior, keep)),
+        latent=lambda a, keep, motion, prior: _latent_inbetween(a, keep, motion, prior)),
     "complete": TaskEntry(
         help="continue the first frames of a motion (prefix completion)",
         description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
