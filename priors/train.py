@@ -13,9 +13,11 @@ import torch
 from tqdm import tqdm
 
 from motionopt.dataset import MotionDataset
+from motionopt.naturalness import METADATA_KEY, HumanRange
 
 from .ccnet import CCNetConfig, CCNetPrior
 from .checkpoint import atomic_torch_save, load_plain, load_prior, save_prior
+from .heldout import held_out_clips
 from .temperature import calibrate
 
 log = logging.getLogger(__name__)
@@ -225,6 +227,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     logf.close()
     prior.eval()
     calibrate_checkpoint(out, dataset, config)
+    store_human_range(out)
     return prior.cpu()
 
 
@@ -238,4 +241,21 @@ def calibrate_checkpoint(out: Path, dataset: MotionDataset, config: TrainConfig)
     best = calibrate(saved, clips, config.seed, config.calibration_seconds)
     log.info("sampling temperature %g: rollouts at %.2f-%.2f times the data's joint speed", best.temperature,
              best.speed_min, best.speed_max)
+    save_prior(saved, out)
+
+
+def store_human_range(out: Path) -> None:
+    """Store the range of human motion of the checkpoint ``out``'s validation clips
+    (``motionopt.naturalness.HumanRange``: what every task's per-second report is judged
+    against), unless it holds one or its clips cannot be read."""
+    saved = load_prior(out)
+    if METADATA_KEY in saved.metadata or not saved.metadata.get("validation_clips"):
+        return
+    try:
+        clips = held_out_clips(saved)
+    except (OSError, ValueError) as err:
+        log.warning("%s: no range of human motion stored, its validation clips could not be read (%s)", out, err)
+        return
+    saved.metadata[METADATA_KEY] = HumanRange.of(saved, [c.motion for c in clips]).to_dict()
+    log.info("range of human motion from %d validation clips: %s", len(clips), saved.metadata[METADATA_KEY])
     save_prior(saved, out)

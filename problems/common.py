@@ -3,12 +3,13 @@ decoding the solution back onto the user's skeleton, and the result object."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from motionopt import naturalness
 from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
@@ -117,12 +118,23 @@ class TaskResult:
     metrics: dict = field(default_factory=dict)
     settings: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    #: Each second of ``model_motion`` measured (``naturalness.per_second``), and the
+    #: held-out data's range it is judged against (None: the prior carries none).
+    per_second: list[dict] = field(default_factory=list)
+    human_range: naturalness.HumanRange | None = None
+
+    def naturalness_line(self) -> str:
+        """How many seconds stay in the data's range, in one sentence."""
+        return naturalness.summary_line(self.per_second, self.human_range)
 
     def report(self) -> dict:
-        """JSON-ready: per-term values at start and end, metrics, timings, settings, and
-        every warning of the run (the task's, then the solver's) under "warnings"."""
+        """JSON-ready: per-term values at start and end, metrics, timings, settings, the
+        naturalness of each second against the data's range, and every warning of the run
+        (the task's, then the solver's) under "warnings"."""
         r = {"metrics": self.metrics, "settings": self.settings,
              "frames": self.motion.num_frames, "fps": self.motion.fps,
+             "per_second": self.per_second,
+             "human_range": None if self.human_range is None else self.human_range.to_dict(),
              "warnings": self.warnings + (self.solver.warnings if self.solver is not None else [])}
         if self.solver is not None:
             s = self.solver
@@ -131,6 +143,16 @@ class TaskResult:
                            "warnings": s.warnings, "timings": s.timings, "seam": s.seam,
                            "windows": len(s.windows)}
         return r
+
+
+def judged(result: TaskResult, prior, ground: float) -> TaskResult:
+    """``result`` with each second of its model motion (floor at ``ground``) measured
+    against the held-out data's range of human motion (``motionopt.naturalness``), and a
+    warning (logged) for each measure that leaves it, naming the seconds."""
+    seconds = naturalness.per_second(prior, result.model_motion, ground)
+    known = naturalness.HumanRange.of_prior(prior)
+    return replace(result, per_second=seconds, human_range=known,
+                   warnings=result.warnings + warned(naturalness.warnings_for(seconds, known)))
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,

@@ -16,7 +16,7 @@ from motionopt.smoothing import butterworth, denoising_family, least_risk
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import Prepared, TaskResult, TermSigmas, plant_feet, prepare, standard_terms
+from .common import Prepared, TaskResult, TermSigmas, judged, plant_feet, prepare, standard_terms
 
 #: Sigma (m/s^2) of the joint accelerations in the denoising objective. On held-out Bandai
 #: clips at 3 cm noise: 10 gives 1.09 cm and a jerk 1.15 times the clean clips', 20 gives
@@ -120,10 +120,10 @@ class Denoise:
     window): the prior with fidelity and contacts alone left the result further from the
     clean clips than the filter (Bandai 1.27 cm against 1.20), and started from the clean
     clip the solver drifted 1.1 cm away from it: the prior tolerates jerky joints. With the
-    acceleration term the solve reaches 1.09 cm on Bandai and 0.96 cm on CMU (best
-    Butterworth 1.23 and 1.30). Without the prior the same solve reaches 1.09 and 0.98 cm:
-    in 30 iterations the prior adds little; with 100 it reaches 1.04 cm on Bandai, where
-    the solve without it does not move (bench/results/tasks*.txt).
+    acceleration term the solve reaches 1.09 cm on Bandai (best Butterworth 1.23) with
+    jitter and foot sliding at the clean clips' level. The same solve without the prior
+    reaches 1.09 cm too, and 1.06 against 1.05 with 100 iterations: with the shipped
+    priors, the acceleration and contact terms do the work (bench/results/tasks*.txt).
 
     With ``clean_feet`` the foot contacts the prior predicts are then planted by leg IK:
     no sliding, at a cost in fidelity (the IK moves planted feet to where they stand on
@@ -170,8 +170,8 @@ class Denoise:
                                  prior_weight=self.prior_weight, prior_min_log_std=self.prior_min_log_std)
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
                     "refine": self.refine, "prior_weight": self.prior_weight,
-                    "smoothness_sigma": self.sigmas.smoothness, "estimated_angle_noise": est_angle, "estimated_root_noise": est_root,
-                    "smoothers": smoothers}
+                    "smoothness_sigma": self.sigmas.smoothness, "estimated_angle_noise": est_angle,
+                    "estimated_root_noise": est_root, "smoothers": smoothers}
         return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
                             settings)
 
@@ -203,7 +203,7 @@ class Denoise:
             "mean_change_cm": float((after - before).norm(dim=-1).mean() * 100),
             "frames_per_second": n / max(seconds, 1e-9),
         }
-        return TaskResult(output, model, result, metrics, setup.settings)
+        return judged(TaskResult(output, model, result, metrics, setup.settings), prior, prep.start.ground)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

@@ -18,7 +18,7 @@ from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
-from .common import (MAX_COORDINATE, TaskResult, TermSigmas, nearest_model_frame, prepare, read_text,
+from .common import (MAX_COORDINATE, TaskResult, judged, TermSigmas, nearest_model_frame, prepare, read_text,
                      run, standard_terms, warned)
 
 #: A target missed by more than this (m) is reported.
@@ -320,9 +320,10 @@ class SpatialEdit:
             "edited_frames_change_cm_mean": float(np.delete(change, others, axis=0).mean() * 100),
             "frames_per_second": n / max(seconds, 1e-9),
         }
-        return TaskResult(prep.to_file(model), model, result, metrics,
-                          {"sigma_target": self.sigma_target, "targets": len(self.targets), "falloff": self.falloff,
-                           "refine": self.refine}, warned(self.miss_warnings(model, per_target)))
+        return judged(TaskResult(prep.to_file(model), model, result, metrics,
+                                 {"sigma_target": self.sigma_target, "targets": len(self.targets),
+                                  "falloff": self.falloff, "refine": self.refine},
+                                 warned(self.miss_warnings(model, per_target))), prior, prep.start.ground)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

@@ -14,7 +14,7 @@ from motionopt.objective import PoseFidelityTerm
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 
-from .common import (MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
+from .common import (MAX_HUMAN_SPEED, TaskResult, judged, TermSigmas, clamped_rollout,
                      model_frames_in, plant_feet, prepare, root_features, run, splice, standard_terms, warned)
 
 
@@ -139,10 +139,10 @@ class Inbetween:
                    "join_root_error_cm": [float(np.linalg.norm(model.root[j - 1] - prep.model.root[j]) * 100)
                                           for j in joins],
                    "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
-        return TaskResult(out, model, result, metrics, {"keep": self.keep, "after": self.after, "frames": total_o,
-                                                        "temperature": self.options.temperature_for(prior),
-                                                        "gap_temperature": self.gap_temperature,
-                                                        "refine": self.refine}, warnings)
+        settings = {"keep": self.keep, "after": self.after, "frames": total_o,
+                    "temperature": self.options.temperature_for(prior), "gap_temperature": self.gap_temperature,
+                    "refine": self.refine}
+        return judged(TaskResult(out, model, result, metrics, settings, warnings), prior, prep.start.ground)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line; the

@@ -18,7 +18,7 @@ from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
-from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, Prepared, TaskResult, TermSigmas,
+from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, Prepared, TaskResult, TermSigmas, judged,
                      clamped_rollout, plant_feet, prepare, read_text, root_features, run, standard_terms,
                      warned)
 
@@ -46,13 +46,19 @@ def point_at(path: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])], axis=-1)
 
 
+#: Path points this close (m) to the nearest one count as equally near (``arc_length_of_nearest``).
+NEAR_TIE = 0.1
+
+
 def arc_length_of_nearest(path: np.ndarray, point: np.ndarray) -> float:
-    """Arc length along the path of the point nearest ``point`` (2,)."""
+    """Arc length along the path of the point nearest ``point`` (2,); of points nearly as
+    near (within ``NEAR_TIE``), the earliest: a closed loop, or a path walked twice,
+    passes the seed's end again later, and is walked from its start."""
     a, b = path[:-1], path[1:]
     ab = b - a
     t = np.clip(((point - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
     d = np.linalg.norm(a + t[:, None] * ab - point, axis=1)
-    i = int(np.argmin(d))
+    i = int(np.flatnonzero(d <= d.min() + NEAR_TIE)[0])
     return float(polyline_lengths(path)[i] + t[i] * np.linalg.norm(ab[i]))
 
 
@@ -234,7 +240,7 @@ class PathFollow:
         warnings = warned(distance_warnings(dist))
         settings = {"sigma_path": self.sigma_path, "speed": speed, "new_seconds": n_new / fps, "refine": self.refine,
                     "temperature": self.options.temperature_for(prior)}
-        return TaskResult(motion, model, result, metrics, settings, warnings)
+        return judged(TaskResult(motion, model, result, metrics, settings, warnings), prior, prep.start.ground)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

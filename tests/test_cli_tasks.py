@@ -219,6 +219,7 @@ def test_inbetween_keeps_drops_or_synthesises_the_frames_after_the_last_range_as
         assert same == (after == "keep")
     r = json.loads(report.read_text())
     assert r["settings"]["after"] == after
+    assert len(r["per_second"]) >= 1 and r["human_range"] is not None   # naturalness of each second
     assert r["metrics"]["synthesised_frames"] == 15 + (61 if after == "synthesise" else 0)
 
 

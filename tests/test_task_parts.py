@@ -215,3 +215,17 @@ def test_a_glitch_turns_one_joint_about_its_main_axis_for_the_frames_asked(walk)
     assert abs(np.dot(main_axis(m.with_frames(q, m.root, m.translations), knee), axis)) > 0.999
     with pytest.raises(ValueError, match="outside"):
         glitch(m, knee, m.num_frames - 2, 8)
+
+
+def test_a_closed_loop_or_a_path_walked_twice_is_joined_at_its_start():
+    """A loop that ends where it starts passes the seed's end twice; it is walked from
+    its start, so the whole loop is synthesised (not one frame, as when the nearest point
+    was taken at the loop's end)."""
+    from problems.path_follow import arc_length_of_nearest
+
+    square = np.array([[0, 0], [3, 0], [3, 3], [0, 3], [0, 0]], float)
+    assert arc_length_of_nearest(square, np.array([0.02, -0.01])) == pytest.approx(0.02)
+    twice = np.concatenate((square, square[1:]))
+    assert arc_length_of_nearest(twice, np.array([0.0, 0.0])) == pytest.approx(0.0)
+    # a path that starts away from the seed is still joined where it passes nearest
+    assert arc_length_of_nearest(square, np.array([3.5, 1.5])) == pytest.approx(4.5)

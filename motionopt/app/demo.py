@@ -135,17 +135,18 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     progress("denoising: cleaning a noised copy of the move")
     noisy = capture_noise(moves, 0.04, 0.004, seed=0)
     res = Denoise(noisy, cmu_prior).solve()
+    filtered = Denoise(noisy, cmu_prior, refine=False).solve().motion
     bvh.save(noisy, out / "noisy.bvh", force=True)
     bvh.save(res.motion, out / "denoised.bvh", force=True)
     plot.plot_joint_trajectories({"noisy": noisy, "denoised": res.motion, "clean": moves}, "lHand",
                                  out / "denoise-trajectory.png", title="Left hand before and after denoising",
                                  force=True)
     err = {name: float(mpjpe(torch.from_numpy(m.positions()), torch.from_numpy(moves.positions())) * 100)
-           for name, m in (("noisy", noisy), ("denoised", res.motion))}
+           for name, m in (("noisy", noisy), ("denoised", res.motion), ("filter", filtered))}
     _write_report(out / "denoise.json", res, {"task": "denoise", "mpjpe_cm": err})
     step("denoising", "rotation noise of 0.04 rad added to the move, removed",
          ["noisy.bvh", "denoised.bvh", "denoise-trajectory.png"],
-         {"mpjpe_noisy_cm": err["noisy"], "mpjpe_denoised_cm": err["denoised"],
+         {"mpjpe_noisy_cm": err["noisy"], "mpjpe_denoised_cm": err["denoised"], "mpjpe_filter_cm": err["filter"],
           "jerk_input": res.metrics["jerk_input_m_per_s3"], "jerk_output": res.metrics["jerk_output_m_per_s3"]}, t0)
 
     # 3. In-betweening: half a second of the move removed and synthesised (CMU prior).

@@ -14,6 +14,7 @@ EXPLAIN = {
     "frames_per_second": "output frames per second of solving",
     "mpjpe_noisy_cm": "mean joint position error of the noisy input against the clean clip (cm)",
     "mpjpe_denoised_cm": "the same error after denoising (cm; lower is better)",
+    "mpjpe_filter_cm": "the same error with the filter the solve starts from alone (--no-refine)",
     "jerk_input": "jitter of the input (mean jerk, m/s^3)",
     "jerk_output": "jitter of the output (m/s^3; lower is smoother)",
     "join_root_error_cm": "root distance where the synthesised gap meets the kept frames (cm)",
