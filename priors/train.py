@@ -253,7 +253,7 @@ def store_human_range(out: Path) -> None:
         return
     try:
         clips = held_out_clips(saved)
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, KeyError) as err:
         log.warning("%s: no range of human motion stored, its validation clips could not be read (%s)", out, err)
         return
     saved.metadata[METADATA_KEY] = HumanRange.of(saved, [c.motion for c in clips]).to_dict()

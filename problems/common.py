@@ -118,10 +118,12 @@ class TaskResult:
     metrics: dict = field(default_factory=dict)
     settings: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
-    #: Each second of ``model_motion`` measured (``naturalness.per_second``), and the
-    #: held-out data's range it is judged against (None: the prior carries none).
+    #: Each second of ``model_motion`` measured (``naturalness.per_second``), the held-out
+    #: data's range it is judged against (None: the prior carries none), and a warning for
+    #: each measure that leaves it, naming the seconds.
     per_second: list[dict] = field(default_factory=list)
     human_range: naturalness.HumanRange | None = None
+    naturalness_warnings: list[str] = field(default_factory=list)
 
     def naturalness_line(self) -> str:
         """How many seconds stay in the data's range, in one sentence."""
@@ -130,12 +132,13 @@ class TaskResult:
     def report(self) -> dict:
         """JSON-ready: per-term values at start and end, metrics, timings, settings, the
         naturalness of each second against the data's range, and every warning of the run
-        (the task's, then the solver's) under "warnings"."""
+        (the task's, the naturalness ones, then the solver's) under "warnings"."""
         r = {"metrics": self.metrics, "settings": self.settings,
              "frames": self.motion.num_frames, "fps": self.motion.fps,
              "per_second": self.per_second,
              "human_range": None if self.human_range is None else self.human_range.to_dict(),
-             "warnings": self.warnings + (self.solver.warnings if self.solver is not None else [])}
+             "warnings": self.warnings + self.naturalness_warnings +
+                         (self.solver.warnings if self.solver is not None else [])}
         if self.solver is not None:
             s = self.solver
             r["solver"] = {"fun_start": s.fun_start, "fun": s.fun, "terms_start": s.terms_start, "terms": s.terms,
@@ -152,7 +155,7 @@ def judged(result: TaskResult, prior, ground: float) -> TaskResult:
     seconds = naturalness.per_second(prior, result.model_motion, ground)
     known = naturalness.HumanRange.of_prior(prior)
     return replace(result, per_second=seconds, human_range=known,
-                   warnings=result.warnings + warned(naturalness.warnings_for(seconds, known)))
+                   naturalness_warnings=warned(naturalness.warnings_for(seconds, known)))
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,

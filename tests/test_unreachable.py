@@ -96,7 +96,7 @@ def test_path_follow_far_from_the_seed_refuses_the_join_and_warns_of_the_distanc
 def test_path_follow_within_reach_has_no_warnings(walk):
     motion, walk_prior, end, heading = walk
     result = PathFollow(motion, np.stack([end, end + 2 * heading]), walk_prior, speed=1.2, candidates=2).solve()
-    assert result.warnings == [] and result.report()["warnings"] == []
+    assert result.warnings == [] and result.report()["warnings"] == result.naturalness_warnings
 
 
 # ---- spatial edits ----------------------------------------------------------------------------------
@@ -128,7 +128,8 @@ def test_warnings_go_to_the_report_and_the_log(capsys, caplog, walk, tmp_path):
                                     report, *TINY)])
     assert rc == 0, capsys.readouterr().err
     warnings = json.loads(report.read_text())["warnings"]
-    assert len(warnings) == 1 and "out of reach" in warnings[0]
+    assert len([w for w in warnings if "out of reach" in w]) == 1 and "out of reach" in warnings[0]
+    assert all("out of reach" in w or "leaves the held-out data's" in w for w in warnings)  # or naturalness
     assert [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING] == warnings
 
 
