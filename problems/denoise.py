@@ -16,12 +16,8 @@ from motionopt.smoothing import butterworth, denoising_family, least_risk
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import Prepared, TaskResult, TermSigmas, judged, plant_feet, prepare, standard_terms
-
-#: Sigma (m/s^2) of the joint accelerations in the denoising objective. On held-out Bandai
-#: clips at 3 cm noise: 10 gives 1.09 cm and a jerk 1.15 times the clean clips', 20 gives
-#: 1.10 cm and 1.7 times (and 5 cm noise 1.73 against 1.64 cm), 7 gives 1.15 cm.
-DENOISE_SMOOTHNESS = 10.0
+from .common import (ACCELERATION_SIGMA, Prepared, TaskResult, TermSigmas, judged, plant_feet, prepare,
+                     standard_terms)
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
@@ -157,7 +153,7 @@ class Denoise:
     prior: object
     sigma_root: float | None = None
     sigma_angle: float | None = None
-    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(smoothness=DENOISE_SMOOTHNESS))
+    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(smoothness=ACCELERATION_SIGMA))
     options: SolverOptions = field(default_factory=lambda: SolverOptions(pso=None))
     cutoff_hz: float | None = None
     clean_feet: bool = False

@@ -307,8 +307,9 @@ TASKS: dict[str, TaskEntry] = {
     "inbetween": TaskEntry(
         help="fill the frames between kept frame ranges",
         description="Keep the frames inside --keep exactly and synthesise the frames between them so that each "
-        "gap meets the next kept frames without a jump; the frames after the last kept range are kept as given "
-        "unless --after says otherwise. --plot draws input over output at the frames of the longest "
+        "gap meets the next kept frames without a jump, then solve them with the MAP solver (--no-refine: the "
+        "steered rollout alone); the frames after the last kept range are kept as given unless --after says "
+        "otherwise. --plot draws input over output at the frames of the longest "
         "gap.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose kept frames are used"),
@@ -321,13 +322,14 @@ TASKS: dict[str, TaskEntry] = {
             CLEAN_FEET),
         read=_kept_ranges,
         build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
-            motion, keep, prior, refine=bool(a.refine), clean_feet=a.clean_feet, after=a.after),
+            motion, keep, prior, refine=a.refine is not False, clean_feet=a.clean_feet, after=a.after),
         draw=_gap_filmstrip,
         latent=lambda a, keep, motion, prior: _latent_inbetween(a, keep, motion, prior)),
     "complete": TaskEntry(
         help="continue the first frames of a motion (prefix completion)",
         description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
-        "--frames frames in all (both in INPUT.bvh's frame rate). --plot draws a filmstrip of output and input.",
+        "--frames frames in all (both in INPUT.bvh's frame rate): a rollout of the prior, then solved with the MAP "
+        "solver (--no-refine: the rollout alone). --plot draws a filmstrip of output and input.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose first frames are kept"),
             arg("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep"),
@@ -335,7 +337,7 @@ TASKS: dict[str, TaskEntry] = {
                 help="frames of the output, prefix included"),
             CLEAN_FEET),
         build=lambda a, _, motion, prior: _problems().inbetween.complete(
-            motion, a.prefix, a.frames, prior, refine=bool(a.refine), clean_feet=a.clean_feet),
+            motion, a.prefix, a.frames, prior, refine=a.refine is not False, clean_feet=a.clean_feet),
         latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(motion, a.prefix, a.frames,
                                                                                     prior)),
     "edit": TaskEntry(
@@ -379,9 +381,9 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     add_prior_options(s)
     s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
-                   "task's result: on by default for denoise (--no-refine: the filter alone), off by default for "
-                   "the others, where with the shipped priors it does not improve the benchmark figures "
-                   "(bench/results/tasks.txt)")
+                   "task's result: on by default for denoise, inbetween and complete (--no-refine: the filter or "
+                   "the steered rollout alone), off by default for path-follow and edit, where with the shipped "
+                   "priors it does not improve the benchmark figures (bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
