@@ -188,7 +188,7 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
     variants = {"per-joint filter (--no-refine)": {"refine": False},
                 "filter + foot IK": {"refine": False, "clean_feet": True},
                 "MAP without the prior": {"prior_weight": 0.0},
-                "ours (MAP, default)": {},
+                DEFAULT_DENOISE: {},
                 "MAP without the prior, 100 it.": {"prior_weight": 0.0, **long},
                 "ours, 100 iterations": long}
     rows, energy_rows = [], []

@@ -18,6 +18,7 @@ import torch
 
 from . import metrics
 from .codec import Codec
+from .features import estimate_ground
 from .motion import Motion
 
 #: Metadata key of a checkpoint's ``HumanRange``.
@@ -43,9 +44,9 @@ class HumanRange:
     @classmethod
     def of(cls, prior, motions: Sequence[Motion]) -> "HumanRange":
         """Measured on ``motions`` (model motions of the prior's skeleton and rate: its
-        validation clips), each on the floor its encoding estimates."""
-        codec = Codec.of(prior)
-        seconds = [s for m in motions for s in per_second(prior, m, codec.encode(m)[2].ground)]
+        validation clips), each on the floor its feet give (``estimate_ground``, as encoding does)."""
+        cidx = prior.spec.contact_indices()
+        seconds = [s for m in motions for s in per_second(prior, m, estimate_ground(m.positions(), cidx))]
 
         def pct(key: str, q: float = PERCENTILE) -> float:
             v = np.array([s[key] for s in seconds])

@@ -100,7 +100,7 @@ class Inbetween:
             raise ValueError(f"--frames {self.n_frames} is shorter than the kept frames (up to {self.keep[-1][1]})")
         after_last_range(self.keep, self.motion.num_frames, self.after)   # checks ``after``
 
-    def _ranges_and_length(self) -> tuple[list[tuple[int, int]], int]:
+    def output_ranges(self) -> tuple[list[tuple[int, int]], int]:
         """The ranges the output copies from the input and its length (input frames)."""
         if self.n_frames is not None:
             return self.keep, self.n_frames
@@ -111,7 +111,7 @@ class Inbetween:
         prep = prepare(self.motion, prior)
         warnings = warned(self.gap_warnings(prep))
         fps_o, fps_m = self.motion.fps, prior.spec.fps
-        keep, total_o = self._ranges_and_length()
+        keep, total_o = self.output_ranges()
         n = int(np.ceil((total_o - 1) / fps_o * fps_m - 1e-6)) + 1
         n_in = min(len(prep.x), n)
         kept = model_frames_in(keep, fps_o, fps_m, n)
@@ -233,16 +233,16 @@ AFTER_LAST_RANGE = ("keep", "drop", "synthesise")
 
 
 def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> tuple[list[tuple[int, int]], int]:
-    """Checked ranges ``keep`` of an ``n_frames`` input and the output's length, with
-    ``after`` (of ``AFTER_LAST_RANGE``) applied to the frames after the last range: "keep"
-    extends that range to the end, "drop" ends the output there, "synthesise" leaves them
-    to be synthesised."""
+    """The ranges ``keep`` (checked and sorted, ``check_ranges``) of an ``n_frames`` input
+    and the output's length, with ``after`` (of ``AFTER_LAST_RANGE``) applied to the frames
+    after the last range: "keep" extends that range to the end, "drop" ends the output
+    there, "synthesise" leaves them to be synthesised."""
     if after not in AFTER_LAST_RANGE:
         raise ValueError(f"after must be one of {', '.join(AFTER_LAST_RANGE)}, got {after!r}")
-    keep = check_ranges(list(keep), n_frames)
     if after == "keep":
         return [*keep[:-1], (keep[-1][0], n_frames)], n_frames
     return keep, (keep[-1][1] if after == "drop" else n_frames)
+
 
 #: Seconds over which a gap's first frames hand over from the kept frames' joint velocities to the prior.
 HANDOFF_SECONDS = 0.25
