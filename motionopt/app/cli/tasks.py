@@ -130,9 +130,10 @@ def _gap_filmstrip(task: Task, motion: Motion, result, out: Path) -> None:
     from motionopt import plot
 
     n = max(motion.num_frames, result.motion.num_frames)
-    gaps = [(stop, start) for (_, stop), (start, _) in zip(task.keep, task.keep[1:])]
-    if result.motion.num_frames > task.keep[-1][1]:
-        gaps.append((task.keep[-1][1], result.motion.num_frames))
+    keep, _ = task.output_ranges()      # --after keep: the frames after the last range are not synthesised
+    gaps = [(stop, start) for (_, stop), (start, _) in zip(keep, keep[1:])]
+    if result.motion.num_frames > keep[-1][1]:
+        gaps.append((keep[-1][1], result.motion.num_frames))
     if not gaps:
         return filmstrip({"input": motion, "output": result.motion}, out)
     a, b = max(gaps, key=lambda g: g[1] - g[0])
