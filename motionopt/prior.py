@@ -65,14 +65,18 @@ class MotionPrior(Protocol):
         """Probability (..., T, C) that each contact joint touches the ground at each frame."""
 
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
-               temperature: float = 1.0, noise: Tensor | None = None, plant: bool = True) -> Tensor:
+               temperature: float = 1.0, noise: Tensor | None = None, plant: bool = True,
+               clamp: tuple[slice, Tensor] | None = None) -> Tensor:
         """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``.
 
         ``noise (..., n_frames, P)``, when given, replaces the standard normal draws of the
         pose dimensions (a rollout is then a deterministic function of it: what the
         particle swarm searches over). With ``plant`` the root of each new frame moves so
         that the contact joints the prior calls planted stay still (no foot sliding);
-        callers that set the root themselves turn it off."""
+        callers that set the root themselves turn it off. ``clamp = (channels, values)``
+        sets those feature channels of new frame t to ``values[t]`` (normalised, (n_frames,
+        K)) before it becomes history: the prior draws the rest of each frame knowing them
+        (the pose for a given root path)."""
 
 
 @runtime_checkable

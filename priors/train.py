@@ -16,7 +16,7 @@ from motionopt.dataset import MotionDataset
 from motionopt.naturalness import METADATA_KEY, HumanRange
 
 from .ccnet import CCNetConfig, CCNetPrior
-from .checkpoint import atomic_torch_save, load_plain, load_prior, save_prior
+from .checkpoint import atomic_torch_save, load_plain, load_prior, resolve_checkpoint, save_prior
 from .heldout import held_out_clips
 from .temperature import calibrate
 
@@ -46,6 +46,12 @@ class TrainConfig:
     contrast_weight: float = 1.0
     #: That margin, in nats per frame and moving dimension.
     contrast_margin: float = 0.1
+    #: Frames at the end of each window that a free-running pass predicts from the
+    #: model's own draws (0: none; ``CCNetPrior.loss``), and the temperature of those draws.
+    rollout_frames: int = 0
+    rollout_temperature: float = 0.5
+    #: A checkpoint whose weights (and normaliser) the run starts from: fine-tuning.
+    init: str | None = None
     seed: int = 0
     max_minutes: float | None = None
     threads: int | None = None
@@ -142,6 +148,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     """
     out = Path(out)
     sp = start_run(out, force, config.threads, config.seed)
+    start = initial_weights(config.init, dataset) if config.init else None
     gen = torch.Generator().manual_seed(config.seed)
     dev = torch.device(config.device)
     train_w, train_valid = (t.to(dev) for t in dataset.padded_windows("train", config.window, config.stride,
@@ -151,8 +158,11 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
                         if dataset.val else (None, None))
     meta = provenance(dataset, config, metadata)
     state = load_plain(sp) if sp.exists() else None
-    model = config.model if state is None else resumed_architecture(state, config.model)
+    model = config.model if start is None else start.config
+    model = model if state is None else resumed_architecture(state, model)
     prior = CCNetPrior(dataset.spec, dataset.normalizer, dataset.skeleton, model, meta).to(dev)
+    if start is not None:
+        prior.load_state_dict(start.state_dict())
     opt = torch.optim.Adam(prior.parameters(), lr=config.lr)
     steps_per_epoch = math.ceil(len(train_w) / config.batch_size)
     total_steps = steps_per_epoch * config.epochs
@@ -177,7 +187,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             idx = order[step * config.batch_size:(step + 1) * config.batch_size].to(dev)
             loss, parts = prior.loss(train_w[idx], train_valid[idx], config.noise_std, config.smooth_weight,
                                      config.contact_weight, config.passes, config.contrast_weight,
-                                     config.contrast_margin, gen)
+                                     config.contrast_margin, gen, config.rollout_frames, config.rollout_temperature)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(prior.parameters(), 1.0)
@@ -229,6 +239,21 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     calibrate_checkpoint(out, dataset, config)
     store_human_range(out)
     return prior.cpu()
+
+
+def initial_weights(path: str, dataset: MotionDataset) -> CCNetPrior:
+    """The prior a fine-tuning run starts from: its architecture and weights, and its
+    normaliser, which ``dataset`` takes over (the weights read features in its units).
+    Raises ValueError when its features are not the dataset's."""
+    start = load_prior(resolve_checkpoint(path))
+    if not isinstance(start, CCNetPrior):
+        raise ValueError(f"{path} is a {type(start).__name__}; --init needs an autoregressive (CCNet) checkpoint")
+    if start.spec != dataset.spec:
+        raise ValueError(f"{path} models other features (joints {', '.join(start.spec.joints)} at "
+                         f"{start.spec.fps:g} fps) than the training data (joints {', '.join(dataset.spec.joints)} "
+                         f"at {dataset.spec.fps:g} fps): fine-tune on motion of its skeleton, at its frame rate")
+    dataset.normalizer = start.normalizer
+    return start
 
 
 def calibrate_checkpoint(out: Path, dataset: MotionDataset, config: TrainConfig) -> None:

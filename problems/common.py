@@ -214,18 +214,9 @@ def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, chann
     the prior synthesises the rest of each frame knowing the clamped channels of the
     frames before it (e.g. the pose for a given root path)."""
     norm = prior.normalizer
-    mean, std = norm.mean[channels].float(), norm.std[channels].float()
-    clamp = (clamp_raw.float() - mean) / std
-    frames = context.float()
-    rf = prior.receptive_field
-    out = []
-    for t in range(len(clamp)):
-        nxt = prior.sample(frames[..., -rf:, :], 1, generator=generator, temperature=temperature,
-                           plant=False)[..., 0, :]
-        nxt[..., channels] = clamp[t]
-        out.append(nxt)
-        frames = torch.cat((frames[..., -rf + 1:, :], nxt[..., None, :]), dim=-2)
-    return torch.stack(out, dim=-2)
+    clamp = (clamp_raw.float() - norm.mean[channels].float()) / norm.std[channels].float()
+    return prior.sample(context.float(), len(clamp), generator=generator, temperature=temperature, plant=False,
+                        clamp=(channels, clamp))
 
 
 def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import math
 
 import pytest
 import torch
@@ -281,3 +282,52 @@ def test_a_cached_context_gives_the_same_predictions_as_the_context(prior, x, n_
             assert torch.allclose(a, b, atol=1e-5)
     nll, _ = prior.nll_and_contacts(window, cached)
     assert torch.allclose(nll, prior.nll(window, ctx), atol=1e-4)
+
+
+def test_a_rollout_step_predicts_what_a_pass_over_the_whole_history_does(prior, x):
+    """``_advance`` carries each block's inputs from frame to frame: after 30 steps its
+    prediction is the full teacher-forced pass's, which re-reads every frame."""
+    past = prior._past(x[None, :5])
+    last = x[None, 4]
+    with torch.no_grad():
+        full_mean, full_log_std, full_logits = prior._predict(x[None, :35])
+        for t in range(4, 35):
+            mean, log_std, logits, past = prior._advance(last, past)
+            last = x[None, t + 1]
+            assert torch.allclose(mean, full_mean[:, t], atol=1e-5)
+            assert torch.allclose(log_std, full_log_std[:, t], atol=1e-5)
+            assert torch.allclose(logits, full_logits[:, t], atol=1e-5)
+
+
+def test_clamped_channels_are_set_in_every_new_frame_and_steer_the_rest(prior, x):
+    ctx = x[:10]
+    values = torch.linspace(-2, 2, 8)[:, None].expand(8, 10)
+    free = prior.sample(ctx, 8, temperature=0.0, plant=False)
+    clamped = prior.sample(ctx, 8, temperature=0.0, plant=False, clamp=(slice(0, 10), values))
+    assert torch.equal(clamped[:, :10], values)
+    # the first frame is drawn before any clamped frame is history; later ones know them
+    assert torch.allclose(clamped[0, 10:], free[0, 10:], atol=1e-6)
+    assert not torch.allclose(clamped[1:, 10:], free[1:, 10:], atol=1e-3)
+
+
+def test_the_free_running_pass_scores_frames_after_the_models_own_draws(prior, x):
+    """With one rollout frame nothing is drawn: the pass is the teacher-forced NLL of the
+    last frame. With more, the frames after the draws score worse than after real ones
+    (the tiny prior's draws wander), and the loss reports that pass."""
+    prior.train()
+    try:
+        torch.manual_seed(0)
+        w = torch.ones(2, x.shape[0] - 1)
+        batch = torch.stack((x, x))
+        one = prior._rollout_nll(batch, w, 1, 1.0, 0.0)
+        tail = prior._gaussian_nll(x[None, -1:], *prior._predict(x[None, :-1])[:2])[:, -1:]
+        assert float(one) == pytest.approx(float(tail.mean()), rel=1e-5)
+        drawn = prior._rollout_nll(batch, w, 20, 1.0, 0.0)
+        real = prior._gaussian_nll(x[None, 1:], *prior._predict(x[None, :-1])[:2])[0, -20:].mean()
+        assert float(drawn) > float(real)
+        loss, parts = prior.loss(batch, rollout_frames=20)
+        loss.backward()
+        assert math.isfinite(parts["nll_rollout"]) and parts["nll_rollout"] > parts["nll"]
+    finally:
+        prior.zero_grad(set_to_none=True)
+        prior.eval()

@@ -128,3 +128,21 @@ def test_the_chosen_temperature_keeps_the_data_pace_without_skating():
              Trial(1.0, 5.0, 9.0, 3.0)]
     assert choose(found).temperature == 0.3
     assert choose([Trial(1.0, 5.0, 9.0, 3.0), Trial(2.0, 9.0, 20.0, 4.0)]).temperature == 1.0
+
+
+def test_fine_tuning_starts_from_the_checkpoints_weights_and_normaliser(trained, tmp_path):
+    tuned = train_prior(tiny_dataset(), tmp_path / "ft.pt", config(epochs=1, lr=1e-12, lr_min=1e-12, init=str(trained)),
+                        progress=False)
+    start = load_prior(trained)
+    assert all(torch.allclose(a, b, atol=1e-8) for a, b in zip(start.parameters(), tuned.parameters()))
+    assert torch.equal(tuned.normalizer.mean, start.normalizer.mean)
+    assert read_checkpoint(tmp_path / "ft.pt")["metadata"]["train_config"]["init"] == str(trained)
+
+
+def test_fine_tuning_refuses_a_checkpoint_of_other_features(trained, tmp_path):
+    from motionopt.dataset import build_dataset
+    from priorkit import DATA, cmu_clips
+
+    other = build_dataset(DATA, fps=15.0, include=[p.name for p in cmu_clips()], val=[cmu_clips()[-1].name])
+    with pytest.raises(ValueError, match="15 fps"):
+        train_prior(other, tmp_path / "ft.pt", config(init=str(trained)), progress=False)

@@ -12,7 +12,8 @@ from . import UserError, add_common
 #: (written out so that the parser does not import torch).
 TRAIN_DEFAULTS = {"batch_size": 32, "noise_std": 0.03, "smooth_weight": 10.0, "channels": 64,
                   "input_dropout": 0.1, "log_std_min": -5.0, "std_floor": 0.0, "stride": 8,
-                  "contrast_weight": 1.0, "contrast_margin": 0.1}
+                  "contrast_weight": 1.0, "contrast_margin": 0.1,
+                  "rollout_frames": 0, "rollout_temperature": 0.5}
 
 
 def register(sub) -> None:
@@ -51,6 +52,14 @@ def register(sub) -> None:
                    f"(default {d['contrast_weight']:g}; 0: likelihood alone, which prefers still, smooth motion)")
     p.add_argument("--contrast-margin", type=float, default=d["contrast_margin"],
                    help=f"that margin in nats per frame and moving dimension (default {d['contrast_margin']:g})")
+    p.add_argument("--rollout-frames", type=int, default=d["rollout_frames"],
+                   help="frames at the end of each window predicted, in an extra pass, from the model's own "
+                   "free-running draws, so that it learns to steer back from the drift of long rollouts "
+                   f"(default {d['rollout_frames']}: none)")
+    p.add_argument("--rollout-temperature", type=float, default=d["rollout_temperature"],
+                   help=f"temperature of those draws (default {d['rollout_temperature']:g})")
+    p.add_argument("--init", default=None, help="start from this checkpoint's weights and normaliser (fine-tuning; "
+                   "a file or a shipped checkpoint's name); its architecture wins over --channels and the like")
     p.add_argument("--device", default="cpu", help="torch device to train on: cpu (default) or cuda")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
@@ -121,7 +130,9 @@ def train_config(args: argparse.Namespace):
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
                        noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model,
-                       stride=args.stride, contrast_weight=args.contrast_weight, contrast_margin=args.contrast_margin)
+                       stride=args.stride, contrast_weight=args.contrast_weight, contrast_margin=args.contrast_margin,
+                       rollout_frames=args.rollout_frames, rollout_temperature=args.rollout_temperature,
+                       init=args.init)
 
 
 def train_metadata(args: argparse.Namespace) -> dict:
