@@ -59,6 +59,11 @@ class CCNetConfig:
     #: trained that way sank its hips 12-17 m below the floor within 60 s from every one
     #: of 8 held-out starts (bench/prior.py, "a minute of motion").
     absolute_height: bool = True
+    #: Predict every pose dimension directly, the joint rotations too. As changes from
+    #: the previous frame, each step's small bias integrates: the mean rollout of the
+    #: Bandai prior trained that way bent its legs, step by step, from every held-out walk
+    #: tried, until the hips hovered at their height with the feet 0.6 m above the floor.
+    absolute_pose: bool = False
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
@@ -67,6 +72,7 @@ class CCNetConfig:
         d.setdefault("absolute_root", False)  # checkpoints from before the field predicted changes
         d.setdefault("absolute_height", d["absolute_root"])  # and from before this one, like the rates
         d.setdefault("std_floor", 0.0)
+        d.setdefault("absolute_pose", False)  # checkpoints from before the field predicted changes
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -167,14 +173,21 @@ class CCNetPrior(nn.Module):
     def _head(self, history: Tensor, out: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """The decoder's output ``out`` read as the next frame's mean, log-std and contact logits."""
         p = self.spec.pose_dim
+        if self.config.absolute_pose:   # still dimensions are held at their previous value either way
+            return (torch.lerp(history[..., :p], out[..., :p], self.moving), *self._spread(out))
         mean = history[..., :p] + out[..., :p] * self.moving
         if self.config.absolute_root:
             s = self.spec.slices()
             r = (s["root_tilt"] if self.config.absolute_height else s["root_height"]).start
             mean = torch.cat((out[..., :r], mean[..., r:]), dim=-1)
+        return (mean, *self._spread(out))
+
+    def _spread(self, out: Tensor) -> tuple[Tensor, Tensor]:
+        """The decoder's output ``out`` read as the next frame's log-std and contact logits."""
+        p = self.spec.pose_dim
         log_std = torch.maximum(out[..., p:2 * p].clamp(self.config.log_std_min, self.config.log_std_max),
                                 self.log_std_floor)
-        return mean, log_std, out[..., 2 * p:]
+        return log_std, out[..., 2 * p:]
 
     def _past(self, frames: Tensor) -> list[Tensor]:
         """Per block, its input (B, channels, pad) at the frames of ``frames (B, T, D)`` before

@@ -182,7 +182,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     for epoch in range(start_epoch, config.epochs):
         order = torch.randperm(len(train_w), generator=gen)
         bar = epoch_bar(steps_per_epoch, f"epoch {epoch + 1}/{config.epochs}", progress)
-        sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0, "ranked": 0.0}
+        sums = {"loss": 0.0, "nll": 0.0, "nll_own": 0.0, "nll_rollout": 0.0, "ranked": 0.0}
         for step in bar:
             idx = order[step * config.batch_size:(step + 1) * config.batch_size].to(dev)
             loss, parts = prior.loss(train_w[idx], train_valid[idx], config.noise_std, config.smooth_weight,
@@ -196,6 +196,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             sums["loss"] += float(loss.detach())
             sums["nll"] += parts["nll"]
             sums["nll_own"] += parts["nll_own"]
+            sums["nll_rollout"] += parts.get("nll_rollout", 0.0)
             sums["ranked"] += parts.get("ranked", 0.0)
             bar.set_postfix(nll=f"{parts['nll']:.1f}")
         record = {
@@ -203,6 +204,8 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
             "train_loss": sums["loss"] / steps_per_epoch,
             "train_nll_per_frame": sums["nll"] / steps_per_epoch,
             "train_nll_own_history": sums["nll_own"] / steps_per_epoch,
+            #: NLL per frame after the model's own free-running draws (None: no such pass)
+            "train_nll_rollout": sums["nll_rollout"] / steps_per_epoch if config.rollout_frames else None,
             #: share of degraded copies ranked behind their window by the margin (None: no ranking loss)
             "train_ranked": sums["ranked"] / steps_per_epoch if config.contrast_weight > 0 else None,
             "val_nll_per_frame": None,

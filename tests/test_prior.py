@@ -162,6 +162,30 @@ def test_root_rates_are_predicted_directly_and_the_rest_as_changes(x, absolute_r
     assert torch.equal(mean[:, :direct], torch.zeros_like(mean[:, :direct]))
 
 
+def test_an_absolute_pose_prior_predicts_every_moving_dimension_directly(x):
+    """Untrained (zero output), its mean is the data mean wherever the data moves, and the
+    previous frame only where it never moves (held, as every prior holds them)."""
+    from dataclasses import replace
+
+    fresh = fresh_prior()
+    untrained = type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton,
+                            replace(fresh.config, absolute_pose=True)).eval()
+    mean, _, _ = untrained.gaussian(x[1:], context=x[:1])
+    moving = untrained.moving.bool()
+    assert torch.equal(mean[:, moving], torch.zeros_like(mean[:, moving]))
+    assert torch.equal(mean[:, ~moving], x[:-1, :fresh.spec.pose_dim][:, ~moving])
+    assert 0 < int((~moving).sum()) < len(moving)
+
+
+def test_checkpoint_from_before_absolute_pose_predicts_changes(prior, tmp_path):
+    path = tmp_path / "old.pt"
+    save_prior(prior, path)
+    data = read_checkpoint(path)
+    del data["config"]["absolute_pose"]
+    torch.save(data, path)
+    assert load_prior(path).config.absolute_pose is False
+
+
 def test_checkpoint_from_before_absolute_root_keeps_its_meaning(prior, x, tmp_path):
     from dataclasses import replace
 

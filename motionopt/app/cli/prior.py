@@ -52,6 +52,8 @@ def register(sub) -> None:
                    f"(default {d['contrast_weight']:g}; 0: likelihood alone, which prefers still, smooth motion)")
     p.add_argument("--contrast-margin", type=float, default=d["contrast_margin"],
                    help=f"that margin in nats per frame and moving dimension (default {d['contrast_margin']:g})")
+    p.add_argument("--absolute-pose", action="store_true",
+                   help="predict the joint rotations directly, not as changes from the previous frame")
     p.add_argument("--rollout-frames", type=int, default=d["rollout_frames"],
                    help="frames at the end of each window predicted, in an extra pass, from the model's own "
                    "free-running draws, so that it learns to steer back from the drift of long rollouts "
@@ -126,7 +128,7 @@ def train_config(args: argparse.Namespace):
     from priors.train import TrainConfig
 
     model = CCNetConfig(channels=args.channels, skip_channels=2 * args.channels, input_dropout=args.input_dropout,
-                        log_std_min=args.log_std_min, std_floor=args.std_floor)
+                        log_std_min=args.log_std_min, std_floor=args.std_floor, absolute_pose=args.absolute_pose)
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
                        noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model,
