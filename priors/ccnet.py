@@ -204,8 +204,8 @@ class CCNetPrior(nn.Module):
 
     def _advance(self, frame: Tensor, past: list[Tensor]) -> tuple[Tensor, Tensor, Tensor, list[Tensor]]:
         """The next frame's mean, log-std and contact logits (B, P), (B, P), (B, C) after
-        ``frame (B, D)``, and the blocks' inputs moved on by it: one frame of work per
-        step of a rollout instead of a pass over the receptive field (63 times less)."""
+        ``frame (B, D)``, and the blocks' inputs moved on by it: one frame of network work
+        per step of a rollout instead of a pass over the receptive field's 63 frames."""
         h = self.encoder(frame[:, :, None])
         skip, moved = 0, []
         for block, p in zip(self.blocks, past):
@@ -402,14 +402,8 @@ class CCNetPrior(nn.Module):
         per target frame), each predicted from the real frames before them and the frames
         the model drew itself in their place (no gradient through the draws)."""
         c = x.shape[1] - frames   # real frames of the history
-        with torch.no_grad():
-            last, past = x[:, c - 1], self._past(x[:, :c])
-            drawn = []
-            for _ in range(frames - 1):
-                mean, log_std, logits, past = self._advance(last, past)
-                last = self._draw(mean, log_std, logits, temperature * torch.randn_like(mean))
-                drawn.append(last)
-        hist = torch.cat((x[:, :c], *(d[:, None] for d in drawn)), dim=1)
+        drawn = self.sample(x[:, :c], frames - 1, temperature=temperature, plant=False)
+        hist = torch.cat((x[:, :c], drawn), dim=1)
         mean, log_std, _ = self._predict(self._noised(hist, noise_std))
         per_frame = self._gaussian_nll(x[:, c:], mean[:, c - 1:], log_std[:, c - 1:])
         wr = w[:, c - 1:]
