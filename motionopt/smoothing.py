@@ -21,6 +21,15 @@ from threadpoolctl import threadpool_limits
 _EDGE = 256
 
 
+def aligned_quaternions(q: np.ndarray) -> np.ndarray:
+    """Quaternions (T, J, 4) with signs flipped so consecutive frames agree (q ~ -q): the
+    form in which rotations can be smoothed or fitted linearly along time."""
+    q = q.copy()
+    for t in range(1, len(q)):
+        q[t, (q[t] * q[t - 1]).sum(-1) < 0] *= -1
+    return q
+
+
 @dataclass(frozen=True)
 class Smoother:
     """A linear, time-invariant (away from the ends) smoother of (T, K) arrays."""

@@ -9,10 +9,12 @@ import numpy as np
 import torch
 
 from motionopt import rotations as R
+from motionopt.codec import Codec
 from motionopt.features import to_file_motion
+from motionopt.glitches import Glitch, find_glitches, turn_back
 from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
-from motionopt.smoothing import butterworth, denoising_family, least_risk
+from motionopt.smoothing import aligned_quaternions, butterworth, denoising_family, least_risk
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
@@ -21,14 +23,6 @@ from .common import (ACCELERATION_SIGMA, Prepared, TaskResult, TermSigmas, judge
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
-
-
-def aligned_quaternions(q: np.ndarray) -> np.ndarray:
-    """Quaternions (T, J, 4) with signs flipped so consecutive frames agree (q ~ -q)."""
-    q = q.copy()
-    for t in range(1, len(q)):
-        q[t, (q[t] * q[t - 1]).sum(-1) < 0] *= -1
-    return q
 
 
 def estimate_noise(motion: Motion) -> tuple[float, float]:
@@ -107,10 +101,10 @@ def fidelity_target(motion: Motion, prior, prep: Prepared) -> tuple[Prepared, fl
 
 @dataclass
 class DenoiseSetup:
-    """A denoising's MAP solve before it runs: the noisy input as the prior sees it, its
-    filtered copy (the file's joints and rate, and as the prior sees it), the objective
-    (fidelity to the input, prior, contacts), the problem (every frame free, starting
-    from the filtered copy) and the settings."""
+    """A denoising's MAP solve before it runs: the noisy input (glitches turned back) as
+    the prior sees it, its filtered copy (the file's joints and rate, and as the prior
+    sees it), the objective (fidelity to the input, prior, contacts), the problem (every
+    frame free, starting from the filtered copy), the settings and the glitches found."""
 
     prep: Prepared
     filtered: Motion
@@ -118,6 +112,7 @@ class DenoiseSetup:
     objective: MAPObjective
     problem: Problem
     settings: dict
+    glitches: list[Glitch]
 
 
 @dataclass
@@ -158,6 +153,7 @@ class Denoise:
     cutoff_hz: float | None = None
     clean_feet: bool = False
     refine: bool = True
+    repair_glitches: bool = True
     prior_weight: float = 0.5
     prior_min_log_std: float | None = -2.5
 
@@ -174,7 +170,11 @@ class Denoise:
         MAP objective and problem over it (what ``solve`` refines, and what benchmarks
         evaluate E(clean), E(start) and E(result) with)."""
         prior = self.prior
-        prep = prepare(self.motion, prior)
+        glitches = []
+        if self.repair_glitches and self.motion.num_frames > 8:
+            glitches = find_glitches(self.motion, self.sigma_angle or estimate_noise(self.motion)[0])
+        source = turn_back(self.motion, glitches)
+        prep = prepare(source, prior)
         n = len(prep.x)
         if n < 3:
             raise ValueError(f"the clip has {n} frames at the prior's {prior.spec.fps:g} fps; denoising needs at least 3")
@@ -182,9 +182,9 @@ class Denoise:
         sigma_angle = self.sigma_angle or max(est_angle, 1e-3)
         sigma_root = self.sigma_root or max(est_root, 1e-3)
         # every joint of the file at its own rate; the solver starts from its model-rate copy
-        filtered, smoothers = low_pass(self.motion, self.cutoff_hz, sigma_angle, est_root)
+        filtered, smoothers = low_pass(source, self.cutoff_hz, sigma_angle, est_root)
         start = prepare(filtered, prior)
-        target, shrink = fidelity_target(self.motion, prior, prep)
+        target, shrink = fidelity_target(source, prior, prep)
         fidelity = PoseFidelityTerm(target.model.root, target.model.rotations, sigma_root * shrink,
                                     sigma_angle * shrink, name="fidelity")
         objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, self.sigmas),
@@ -192,9 +192,12 @@ class Denoise:
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
                     "refine": self.refine, "prior_weight": self.prior_weight,
                     "smoothness_sigma": self.sigmas.smoothness, "estimated_angle_noise": est_angle,
-                    "estimated_root_noise": est_root, "smoothers": smoothers, "fidelity_noise_scale": shrink}
+                    "estimated_root_noise": est_root, "smoothers": smoothers, "fidelity_noise_scale": shrink,
+                    "repair_glitches": self.repair_glitches,
+                    "glitches": [{"joint": self.motion.skeleton.names[g.joint], "frames": [g.first, g.stop - 1],
+                                  "degrees": round(g.degrees, 1)} for g in glitches]}
         return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
-                            settings)
+                            settings, glitches)
 
     def solve(self) -> TaskResult:
         prior = self.prior
@@ -215,7 +218,9 @@ class Denoise:
         seconds = time.perf_counter() - t0
         fps = prior.spec.fps
         cidx = prior.spec.contact_indices()
-        before, after = torch.from_numpy(prep.model.positions()), torch.from_numpy(model.positions())
+        seen = Codec.of(prior).model_motion(self.motion) if setup.glitches else prep.model  # the input as given
+        before = torch.from_numpy(seen.positions())
+        after = torch.from_numpy(model.positions())
         metrics = {
             "jerk_input_m_per_s3": float(jerk(before, fps)),
             "jerk_output_m_per_s3": float(jerk(after, fps)),
@@ -229,7 +234,11 @@ class Denoise:
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""
         m = result.metrics
-        return [f"jitter (mean jerk): {m['jerk_input_m_per_s3']:.0f} -> {m['jerk_output_m_per_s3']:.0f} m/s^3, "
+        found = result.settings["glitches"]
+        glitches = [f"glitches turned back: {len(found)}"
+                    + "".join(f"; {g['joint']} frames {g['frames'][0]}-{g['frames'][1]} ({g['degrees']:.0f} deg)"
+                              for g in found[:5]) + ("; ..." if len(found) > 5 else "")] if found else []
+        return glitches + [f"jitter (mean jerk): {m['jerk_input_m_per_s3']:.0f} -> {m['jerk_output_m_per_s3']:.0f} m/s^3, "
                 "input -> output",
                 f"foot skating: {m['foot_skating_input_cm_per_s']:.1f} -> {m['foot_skating_output_cm_per_s']:.1f} "
                 "cm/s, input -> output",

@@ -299,10 +299,16 @@ TASKS: dict[str, TaskEntry] = {
         description="Estimate the capture noise in the clip, smooth each joint with the Butterworth or "
         "Savitzky-Golay filter of least estimated risk for it, then run the MAP solve from there: fidelity to the "
         "input's root and joint angles, the prior, contact terms and joint accelerations (--no-refine: the filter "
-        "alone). --clean-feet then plants the feet by leg IK. --plot draws a foot's trajectory before and after.",
-        arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET),
+        "alone). Before that, glitches (one joint thrown off by tens of degrees for a fraction of a second, entering "
+        "and leaving with the same turn) are found at the file's rate and turned back; the summary names them. "
+        "--clean-feet then plants the feet by leg IK. --plot draws a foot's trajectory before and after.",
+        arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET,
+                   arg("--keep-glitches", action="store_true",
+                       help="do not look for glitches: bursts in which one joint is turned by an offset of 25 degrees "
+                       "or more for 0.1-0.5 s are then smoothed like the rest (a filter smears them)")),
         build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
-                                                                      clean_feet=a.clean_feet),
+                                                                      clean_feet=a.clean_feet,
+                                                                      repair_glitches=not a.keep_glitches),
         latent=lambda a, _, motion, prior: _problems().latent.LatentTask(motion, prior),
         draw=_foot_trajectory, new_frames=False),
     "inbetween": TaskEntry(
