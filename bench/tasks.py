@@ -184,13 +184,13 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
     cidx = prior.spec.contact_indices()
     lines = [f"2. Denoising ({len(clips)} held-out clips at the prior's "
              f"{fps:g} fps, first {seconds:g} s of each; MAP: {iters} L-BFGS iterations per window)"]
-    long = {"options": SolverOptions(pso=None, max_iter=100)}
+    long = {"options": SolverOptions(pso=None, max_iter=60)}
     variants = {"per-joint filter (--no-refine)": {"refine": False},
                 "filter + foot IK": {"refine": False, "clean_feet": True},
                 "MAP without the prior": {"prior_weight": 0.0},
                 DEFAULT_DENOISE: {},
-                "MAP without the prior, 100 it.": {"prior_weight": 0.0, **long},
-                "ours, 100 iterations": long}
+                "MAP without the prior, 60 it.": {"prior_weight": 0.0, **long},
+                "ours, --iterations 60": long}
     rows, energy_rows = [], []
     for level in (0.01, 0.03, 0.05):
         clean, noisy, sig = [], [], []
@@ -455,7 +455,8 @@ def main() -> None:
     ap.add_argument("--small", type=int, default=3,
                     help="held-out clips of 4 s or more for the slower denoising, in-betweening and edits")
     ap.add_argument("--seconds", type=float, default=3.0, help="path length in seconds of the held-out clips")
-    ap.add_argument("--iters", type=int, default=30, help="L-BFGS iterations per window for denoising")
+    ap.add_argument("--iters", type=int, default=SolverOptions.max_iter,
+                    help=f"L-BFGS iterations per window for denoising (default {SolverOptions.max_iter}, the task's)")
     ap.add_argument("--tasks", nargs="+", default=["path", "denoise", "denoise-files", "glitch", "inbetween", "complete",
                                                    "edit"])
     ap.add_argument("--threads", type=int, default=1)
