@@ -305,7 +305,8 @@ TASKS: dict[str, TaskEntry] = {
         arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET,
                    arg("--keep-glitches", action="store_true",
                        help="do not look for glitches: bursts in which one joint is turned by an offset of 25 degrees "
-                       "or more for 0.1-0.5 s are then smoothed like the rest (a filter smears them)")),
+                       "or more for 0.1-0.5 s are then smoothed like the rest (a filter smears them); use it for motion "
+                       "that really jumps tens of degrees a frame, like a furious wave captured at 30 fps")),
         build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
                                                                       clean_feet=a.clean_feet,
                                                                       repair_glitches=not a.keep_glitches),
