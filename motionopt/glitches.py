@@ -115,7 +115,7 @@ def turn_back(motion: Motion, glitches: list[Glitch]) -> Motion:
     q = torch.from_numpy(motion.rotations.copy())
     for g in glitches:
         length = g.stop - g.first
-        s = torch.linspace(0.0, 1.0, length, dtype=q.dtype) if length > 1 else torch.zeros(1, dtype=q.dtype)
+        s = torch.linspace(0.0, 1.0, length, dtype=q.dtype)   # one frame: [0], the entering offset
         o_in = torch.from_numpy(g.offset_in).expand(length, 4)
         o_out = torch.from_numpy(g.offset_out).expand(length, 4)
         offset = R.quat_slerp(o_in, o_out, s)
