@@ -11,7 +11,7 @@ import torch
 from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.features import to_file_motion
-from motionopt.glitches import Glitch, find_glitches, turn_back
+from motionopt.glitches import Glitch, Swirl, fill_swirls, find_glitches, find_swirls, turn_back
 from motionopt.metrics import foot_skating, jerk
 from motionopt.motion import Motion
 from motionopt.smoothing import aligned_quaternions, butterworth, denoising_family, least_risk
@@ -101,10 +101,10 @@ def fidelity_target(motion: Motion, prior, prep: Prepared) -> tuple[Prepared, fl
 
 @dataclass
 class DenoiseSetup:
-    """A denoising's MAP solve before it runs: the noisy input (glitches turned back) as
-    the prior sees it, its filtered copy (the file's joints and rate, and as the prior
+    """A denoising's MAP solve before it runs: the noisy input (glitches turned back,
+    swirls filled in) as the prior sees it, its filtered copy (the file's joints and rate, and as the prior
     sees it), the objective (fidelity to the input, prior, contacts), the problem (every
-    frame free, starting from the filtered copy), the settings and the glitches found."""
+    frame free, starting from the filtered copy), the settings and the glitches and swirls found."""
 
     prep: Prepared
     filtered: Motion
@@ -113,6 +113,7 @@ class DenoiseSetup:
     problem: Problem
     settings: dict
     glitches: list[Glitch]
+    swirls: list[Swirl]
 
 
 @dataclass
@@ -180,10 +181,13 @@ class Denoise:
         MAP objective and problem over it (what ``solve`` refines, and what benchmarks
         evaluate E(clean), E(start) and E(result) with)."""
         prior = self.prior
-        glitches = []
+        glitches, swirls, source = [], [], self.motion
         if self.repair_glitches and self.motion.num_frames > 8:
-            glitches = find_glitches(self.motion, self.sigma_angle or estimate_noise(self.motion)[0])
-        source = turn_back(self.motion, glitches)
+            noise = self.sigma_angle or estimate_noise(self.motion)[0]
+            glitches = find_glitches(self.motion, noise)
+            source = turn_back(self.motion, glitches)
+            swirls = find_swirls(source, noise)
+            source = fill_swirls(source, swirls)
         prep = prepare(source, prior)
         n = len(prep.x)
         if n < 3:
@@ -205,9 +209,11 @@ class Denoise:
                     "estimated_root_noise": est_root, "smoothers": smoothers, "fidelity_noise_scale": shrink,
                     "repair_glitches": self.repair_glitches,
                     "glitches": [{"joint": self.motion.skeleton.names[g.joint], "frames": [g.first, g.stop - 1],
-                                  "degrees": round(g.degrees, 1)} for g in glitches]}
+                                  "degrees": round(g.degrees, 1)} for g in glitches],
+                    "swirls": [{"joint": self.motion.skeleton.names[w.joint], "frames": [w.first, w.stop - 1],
+                                "degrees_per_second": round(w.degrees_per_second)} for w in swirls]}
         return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
-                            settings, glitches)
+                            settings, glitches, swirls)
 
     def solve(self) -> TaskResult:
         prior = self.prior
@@ -228,7 +234,8 @@ class Denoise:
         seconds = time.perf_counter() - t0
         fps = prior.spec.fps
         cidx = prior.spec.contact_indices()
-        seen = Codec.of(prior).model_motion(self.motion) if setup.glitches else prep.model  # the input as given
+        repaired = setup.glitches or setup.swirls
+        seen = Codec.of(prior).model_motion(self.motion) if repaired else prep.model  # the input as given
         before = torch.from_numpy(seen.positions())
         after = torch.from_numpy(model.positions())
         metrics = {
@@ -248,6 +255,11 @@ class Denoise:
         glitches = [f"glitches turned back: {len(found)}"
                     + "".join(f"; {g['joint']} frames {g['frames'][0]}-{g['frames'][1]} ({g['degrees']:.0f} deg)"
                               for g in found[:5]) + ("; ..." if len(found) > 5 else "")] if found else []
+        swirls = result.settings["swirls"]
+        glitches += [f"swirls filled in: {len(swirls)}"
+                     + "".join(f"; {w['joint']} frames {w['frames'][0]}-{w['frames'][1]} "
+                               f"({w['degrees_per_second']:.0f} deg/s)" for w in swirls[:5])
+                     + ("; ..." if len(swirls) > 5 else "")] if swirls else []
         return glitches + [f"jitter (mean jerk): {m['jerk_input_m_per_s3']:.0f} -> {m['jerk_output_m_per_s3']:.0f} m/s^3, "
                 "input -> output",
                 f"foot skating: {m['foot_skating_input_cm_per_s']:.1f} -> {m['foot_skating_output_cm_per_s']:.1f} "

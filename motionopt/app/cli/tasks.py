@@ -300,13 +300,17 @@ TASKS: dict[str, TaskEntry] = {
         "Savitzky-Golay filter of least estimated risk for it, then run the MAP solve from there: fidelity to the "
         "input's root and joint angles, the prior, contact terms and joint accelerations (--no-refine: the filter "
         "alone). Before that, glitches (one joint thrown off by tens of degrees for a fraction of a second, entering "
-        "and leaving with the same turn) are found at the file's rate and turned back; the summary names them. "
+        "and leaving with the same turn) are found at the file's rate and turned back, and swirls (one joint thrown "
+        "for a fraction of a second into poses it takes nowhere else in the clip, turning faster than 1200 degrees a "
+        "second and than four times its usual fastest) are filled in from the frames around them; the summary names "
+        "both. "
         "--clean-feet then plants the feet by leg IK. --plot draws a foot's trajectory before and after.",
         arguments=(arg("input", metavar="INPUT.bvh", help="motion to clean"), CLEAN_FEET,
                    arg("--keep-glitches", action="store_true",
-                       help="do not look for glitches: bursts in which one joint is turned by an offset of 25 degrees "
-                       "or more for 0.1-0.5 s are then smoothed like the rest (a filter smears them); use it for motion "
-                       "that really jumps tens of degrees a frame, like a furious wave captured at 30 fps")),
+                       help="do not look for glitches or swirls: bursts in which one joint is turned by an offset of 25 "
+                       "degrees or more for 0.1-0.5 s, or swirls off its own poses, are then smoothed like the rest (a "
+                       "filter smears them); use it for motion that really jumps tens of degrees a frame, like a "
+                       "furious wave captured at 30 fps")),
         build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
                                                                       clean_feet=a.clean_feet,
                                                                       repair_glitches=not a.keep_glitches),
