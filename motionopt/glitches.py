@@ -140,9 +140,9 @@ _SWIRL_PEAK = 20.0
 _SWIRL_EDGE = 2.5
 #: Around a swirl the joint turns faster than this (degrees per second; 1200 is 20
 #: degrees a frame at 60 fps) and faster than ``_SWIRL_SPEED_MARGIN`` times its 99th
-#: percentile over the clip. On 1853 s of real capture (``bench/glitches.py``) the fastest
-#: real turn seen, a Bandai punch's elbow, is 1.4 times its clip's 99th percentile; the
-#: bursts found are 4.6 to 11.7 times it.
+#: percentile elsewhere in the clip. Of the runs far outside a joint's poses in the shared
+#: capture, those in ordinary motion turn at most 2.1 times it (a Bandai punch's elbow:
+#: 2024 deg/s, 1.4 times); the CMU salsa glitches 4.8 to 15.6 times.
 _SWIRL_MIN_SPEED = 1200.0
 _SWIRL_SPEED_MARGIN = 4.0
 #: The spread of a joint's poses is floored at this (radians per axis) before distances
