@@ -64,6 +64,10 @@ class CCNetConfig:
     #: Bandai prior trained that way bent its legs, step by step, from every held-out walk
     #: tried, until the hips hovered at their height with the feet 0.6 m above the floor.
     absolute_pose: bool = False
+    #: Joints (by name; the root's for its tilt) whose rotations are predicted directly
+    #: while the rest are predicted as changes: the legs, so that the support the absolute
+    #: root height stands on cannot drift away from it step by step in a rollout.
+    absolute_joints: tuple[str, ...] = ()
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
@@ -73,10 +77,26 @@ class CCNetConfig:
         d.setdefault("absolute_height", d["absolute_root"])  # and from before this one, like the rates
         d.setdefault("std_floor", 0.0)
         d.setdefault("absolute_pose", False)  # checkpoints from before the field predicted changes
+        d["absolute_joints"] = tuple(d.get("absolute_joints", ()))
         return cls(**d)
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def absolute_dims(spec: FeatureSpec, joints: tuple[str, ...]) -> Tensor:
+    """(P,) True on the pose dimensions of ``joints``' rotations (the root's: its tilt)."""
+    unknown = [j for j in joints if j not in spec.joints]
+    if unknown:
+        raise ValueError(f"absolute joints {', '.join(unknown)} are not among the prior's joints "
+                         f"({', '.join(spec.joints)})")
+    s = spec.slices()
+    mask = torch.zeros(spec.pose_dim, dtype=torch.bool)
+    for name in joints:
+        i = spec.joints.index(name)
+        start = s["root_tilt"].start if i == 0 else s["joint_rotations"].start + 6 * (i - 1)
+        mask[start:start + 6] = True
+    return mask
 
 
 class GatedResidualBlock(nn.Module):
@@ -146,6 +166,7 @@ class CCNetPrior(nn.Module):
         floor = (torch.log(config.std_floor / normalizer.std[:spec.pose_dim]) if config.std_floor > 0
                  else torch.full((spec.pose_dim,), -math.inf))
         self.register_buffer("log_std_floor", floor.float(), persistent=False)
+        self.register_buffer("absolute_dims", absolute_dims(spec, config.absolute_joints), persistent=False)
 
     @property
     def receptive_field(self) -> int:
@@ -176,6 +197,8 @@ class CCNetPrior(nn.Module):
         if self.config.absolute_pose:   # still dimensions are held at their previous value either way
             return (torch.lerp(history[..., :p], out[..., :p], self.moving), *self._spread(out))
         mean = history[..., :p] + out[..., :p] * self.moving
+        if self.config.absolute_joints:
+            mean = torch.where(self.absolute_dims, torch.lerp(history[..., :p], out[..., :p], self.moving), mean)
         if self.config.absolute_root:
             s = self.spec.slices()
             r = (s["root_tilt"] if self.config.absolute_height else s["root_height"]).start

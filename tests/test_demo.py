@@ -29,7 +29,9 @@ def demo_dir(demo_run) -> Path:
 
 def test_the_readme_shows_what_the_demo_prints(demo_run) -> None:
     """The README's sample summary: every line explained as the demo explains it, and its
-    figures those of a run (but the path and the speeds, which --fast and the machine change)."""
+    figures those of a run (but the path and the speeds, which --fast and the machine change),
+    within 5%: the round-off of another CPU moves an L-BFGS solve a little (the denoised
+    jitter: 131.70 on one machine, 128.94 on another, with the same packages)."""
     readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
     block = readme.split("The printed summary explains every number")[1].split("```")[1]
     shown: dict[str, list[tuple[str, str]]] = {}
@@ -42,7 +44,8 @@ def test_the_readme_shows_what_the_demo_prints(demo_run) -> None:
     for step in demo_run.steps:
         assert [text for _, text in shown[step.name]] == [EXPLAIN[k] for k in step.metrics], step.name
         if step.name != "path following":
-            assert [v for v, _ in shown[step.name]] == [figure(step.metrics[k]) for k in step.metrics], step.name
+            assert [float(v) for v, _ in shown[step.name]] == pytest.approx(
+                [float(figure(step.metrics[k])) for k in step.metrics], rel=0.05), step.name
 
 
 def test_the_package_ships_no_motion_files() -> None:

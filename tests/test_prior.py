@@ -177,6 +177,34 @@ def test_an_absolute_pose_prior_predicts_every_moving_dimension_directly(x):
     assert 0 < int((~moving).sum()) < len(moving)
 
 
+def test_absolute_joints_are_predicted_directly_and_the_rest_as_changes(x, tmp_path):
+    """Untrained, the named joints' moving dimensions (the root's: its tilt) are predicted
+    as the data mean and every other joint as its previous frame; the setting survives a
+    checkpoint, and a name the prior does not model is refused with the names it does."""
+    from dataclasses import replace
+
+    fresh = fresh_prior()
+    spec, s = fresh.spec, fresh.spec.slices()
+    legs = tuple(j for j in spec.joints[1:] if j.startswith(("r", "l")))[:2]
+    untrained = type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton,
+                            replace(fresh.config, absolute_joints=(spec.joints[0],) + legs)).eval()
+    mean, _, _ = untrained.gaussian(x[1:], context=x[:1])
+    direct = torch.zeros(spec.pose_dim, dtype=torch.bool)
+    direct[s["root_tilt"]] = True
+    for name in legs:
+        start = s["joint_rotations"].start + 6 * (spec.joints.index(name) - 1)
+        direct[start:start + 6] = True
+    direct &= untrained.moving.bool()
+    rest = ~direct
+    rest[:4] = False   # the root rates and height: predicted directly in every prior
+    assert torch.equal(mean[:, direct], torch.zeros_like(mean[:, direct]))
+    assert torch.equal(mean[:, rest], x[:-1, :spec.pose_dim][:, rest])
+    save_prior(untrained, tmp_path / "legs.pt")
+    assert load_prior(tmp_path / "legs.pt").config.absolute_joints == (spec.joints[0],) + legs
+    with pytest.raises(ValueError, match="not among the prior's joints"):
+        type(fresh)(fresh.spec, fresh.normalizer, fresh.skeleton, replace(fresh.config, absolute_joints=("tail",)))
+
+
 def test_checkpoint_from_before_absolute_pose_predicts_changes(prior, tmp_path):
     path = tmp_path / "old.pt"
     save_prior(prior, path)

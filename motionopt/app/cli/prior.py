@@ -54,6 +54,9 @@ def register(sub) -> None:
                    help=f"that margin in nats per frame and moving dimension (default {d['contrast_margin']:g})")
     p.add_argument("--absolute-pose", action="store_true",
                    help="predict the joint rotations directly, not as changes from the previous frame")
+    p.add_argument("--absolute-joints", nargs="+", default=(), metavar="JOINT",
+                   help="predict these joints' rotations directly (the root's: its tilt) and the rest as changes, "
+                   "e.g. the legs, so that rollouts keep their feet under the predicted hip height")
     p.add_argument("--rollout-frames", type=int, default=d["rollout_frames"],
                    help="frames at the end of each window predicted, in an extra pass, from the model's own "
                    "free-running draws, so that it learns to steer back from the drift of long rollouts "
@@ -128,7 +131,8 @@ def train_config(args: argparse.Namespace):
     from priors.train import TrainConfig
 
     model = CCNetConfig(channels=args.channels, skip_channels=2 * args.channels, input_dropout=args.input_dropout,
-                        log_std_min=args.log_std_min, std_floor=args.std_floor, absolute_pose=args.absolute_pose)
+                        log_std_min=args.log_std_min, std_floor=args.std_floor, absolute_pose=args.absolute_pose,
+                        absolute_joints=tuple(args.absolute_joints))
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
                        noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model,
