@@ -65,7 +65,7 @@ from motionopt.solver.diagnostics import energies_at  # noqa: E402
 from priors.checkpoint import load_prior  # noqa: E402
 from priors.heldout import data_folder, held_out_clips  # noqa: E402
 from problems.common import prepare  # noqa: E402
-from problems.denoise import Denoise  # noqa: E402
+from problems.denoise import Denoise, denoise_options  # noqa: E402
 from problems.edit import JointTarget, SpatialEdit  # noqa: E402
 from problems.inbetween import Inbetween, complete  # noqa: E402
 from problems.path_follow import PathFollow  # noqa: E402
@@ -184,7 +184,7 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
     cidx = prior.spec.contact_indices()
     lines = [f"2. Denoising ({len(clips)} held-out clips at the prior's "
              f"{fps:g} fps, first {seconds:g} s of each; MAP: {iters} L-BFGS iterations per window)"]
-    long = {"options": SolverOptions(pso=None, max_iter=60)}
+    long = {"options": denoise_options(max_iter=60)}
     variants = {"per-joint filter (--no-refine)": {"refine": False},
                 "filter + foot IK": {"refine": False, "clean_feet": True},
                 "MAP without the prior": {"prior_weight": 0.0},
@@ -203,7 +203,7 @@ def bench_denoise(prior, clips: list[tuple[str, Motion]], seconds: float, iters:
             clean.append(c.positions())
             noisy.append(nz.positions())
             for label, kwargs in variants.items():
-                task = Denoise(nz, prior, **{"options": SolverOptions(pso=None, max_iter=iters), **kwargs})
+                task = Denoise(nz, prior, **{"options": denoise_options(max_iter=iters), **kwargs})
                 t0 = time.perf_counter()
                 r = task.solve()
                 secs[label] += time.perf_counter() - t0

@@ -15,6 +15,14 @@ def joint_speed(positions: Tensor, fps: float) -> Tensor:
     return (positions[..., 1:, :, :] - positions[..., :-1, :, :]).norm(dim=-1) * fps
 
 
+def acceleration_rms(positions: Tensor, fps: float) -> Tensor:
+    """Root mean square over frames of every joint's acceleration (m/s^2), shape
+    ``(..., J)``, by second differences."""
+    p = positions
+    acc = (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * fps ** 2
+    return acc.pow(2).sum(-1).mean(-2).sqrt()
+
+
 def jerk(positions: Tensor, fps: float) -> Tensor:
     """Mean magnitude (m/s^3) of the third time derivative of joint positions, by finite
     differences over four frames, averaged over frames and joints; shape ``(...)``.

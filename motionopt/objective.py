@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -307,16 +308,18 @@ class ContactTerm(Term):
 
 @dataclass
 class SmoothnessTerm(Term):
-    """Joint accelerations (m/s^2) small, with sigma ``sigma``; uses the solved frames
-    before the window so that the window's start is smooth too."""
+    """Joint accelerations (m/s^2) small, with sigma ``sigma``: one for every joint, or
+    one per joint of the model skeleton; uses the solved frames before the window so that
+    the window's start is smooth too."""
 
-    sigma: float = 30.0
+    sigma: float | Sequence[float] = 30.0
     name: str = "smoothness"
 
     def energy(self, state: WindowState) -> Tensor:
         p = state.positions[..., max(state.lead - 2, 0):, :, :]
         acc = (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * state.fps ** 2
-        return _gaussian(acc.pow(2).sum(-1), self.sigma).sum((-1, -2))
+        sigma = torch.as_tensor(self.sigma, dtype=acc.dtype)
+        return (acc.pow(2).sum(-1) / (2 * sigma * sigma)).sum((-1, -2))
 
 
 @dataclass

@@ -8,11 +8,15 @@ import platform
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Iterable
 
 import torch
+from torch import Tensor
 from tqdm import tqdm
 
+from motionopt.codec import Codec
 from motionopt.dataset import MotionDataset
+from motionopt.metrics import acceleration_rms
 from motionopt.naturalness import METADATA_KEY, HumanRange
 
 from .ccnet import CCNetConfig, CCNetPrior
@@ -241,6 +245,7 @@ def train_prior(dataset: MotionDataset, out: str | Path, config: TrainConfig = T
     prior.eval()
     calibrate_checkpoint(out, dataset, config)
     store_human_range(out)
+    store_joint_acceleration(out, dataset.train.values())
     return prior.cpu()
 
 
@@ -269,6 +274,30 @@ def calibrate_checkpoint(out: Path, dataset: MotionDataset, config: TrainConfig)
     best = calibrate(saved, clips, config.seed, config.calibration_seconds)
     log.info("sampling temperature %g: rollouts at %.2f-%.2f times the data's joint speed", best.temperature,
              best.speed_min, best.speed_max)
+    save_prior(saved, out)
+
+
+#: Metadata key of the RMS acceleration (m/s^2) of each modelled joint over the training
+#: clips: what the MAP solve's acceleration term scales its sigmas by.
+ACCELERATION_KEY = "joint_acceleration_rms"
+
+
+def store_joint_acceleration(out: Path, clips: Iterable[Tensor]) -> None:
+    """Store in the checkpoint ``out`` the RMS acceleration of each modelled joint over
+    ``clips`` (its training clips, raw features at its rate), unless it holds them."""
+    saved = load_prior(out)
+    if ACCELERATION_KEY in saved.metadata:
+        return
+    codec, fps = Codec.of(saved), saved.spec.fps
+    squares, frames = 0.0, 0
+    for raw in clips:
+        if len(raw) < 3:
+            continue
+        pos = codec.positions(saved.normalizer.normalize(raw).double())
+        squares = squares + acceleration_rms(pos, fps).pow(2) * (len(raw) - 2)
+        frames += len(raw) - 2
+    saved.metadata[ACCELERATION_KEY] = [round(float(v), 3) for v in (squares / frames).sqrt()]
+    log.info("joint accelerations, RMS over the training clips (m/s^2): %s", saved.metadata[ACCELERATION_KEY])
     save_prior(saved, out)
 
 

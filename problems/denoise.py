@@ -3,7 +3,7 @@ input's root and joint angles while the prior makes it natural and contacts clea
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -18,7 +18,7 @@ from motionopt.smoothing import aligned_quaternions, butterworth, denoising_fami
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import (ACCELERATION_SIGMA, Prepared, TaskResult, TermSigmas, judged, plant_feet, prepare,
+from .common import (Prepared, TaskResult, TermSigmas, acceleration_sigmas, judged, plant_feet, prepare,
                      standard_terms)
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
@@ -65,15 +65,32 @@ def low_pass(motion: Motion, cutoff_hz: float | None = None, angle_sigma: float 
 def with_change(motion: Motion, before: Motion, after: Motion) -> Motion:
     """``motion`` (any skeleton and rate holding the prior's joints) with the change from
     ``before`` to ``after`` (model motions at the prior's rate) added: each modelled
-    joint turned by its change in its own frame, the root moved by the root's change,
-    both resampled to ``motion``'s rate. Joints the prior does not model keep
-    ``motion``'s values; with ``after`` equal to ``before`` the result is ``motion``."""
+    joint turned by its change in its own frame, the file's root moved by the root's
+    change, both resampled to ``motion``'s rate. Joints the prior does not model keep
+    ``motion``'s values, and so do the positions of joints above the model root (the
+    hips under a ground joint such as Bandai's joint_Root, whose noisy turn moves the
+    whole body): there the solve's root path ended further from the clean one than the
+    filter's (held-out Bandai files, 3 cm of noise: 0.89 cm with it moved, 0.69 without;
+    the filter alone 0.69), while on files whose root is the model's it helped (CMU at
+    120 fps: 0.87 against 0.91). With ``after`` equal to ``before`` the result is
+    ``motion``."""
     a, b = to_file_motion(before, motion), to_file_motion(after, motion)
     turn = R.quat_multiply(R.quat_conjugate(torch.from_numpy(a.rotations)), torch.from_numpy(b.rotations))
     rot = R.quat_multiply(torch.from_numpy(motion.rotations), turn).numpy()
-    moved = None if motion.translations is None else (
-        motion.translations + b.local_translations() - a.local_translations())  # joints above the model root
-    return motion.with_frames(rot, motion.root + (b.root - a.root), moved)
+    return motion.with_frames(rot, motion.root + (b.root - a.root), motion.translations)
+
+
+#: Joint acceleration sigmas of denoising's MAP solve, in units of each joint's RMS
+#: acceleration over the prior's training clips (``common.acceleration_sigmas``).
+#: Measured on held-out clips (``bench/tasks.py``, see ``Denoise``).
+ACCELERATION_SCALE = 1.0
+
+def denoise_options(**changes) -> SolverOptions:
+    """Denoising's solver settings (``changes`` applied): no particle swarm (there are no
+    new frames to steer), 30 L-BFGS corrections kept and 16 cosine steps per window, which
+    the long acceleration coupling of a clean clip needs (held-out Bandai clips at 3 cm
+    noise: 1.062 cm with the solver's 10 and 8, 1.050 with these)."""
+    return SolverOptions(**{"pso": None, "history": 30, "basis": 16, **changes})
 
 
 #: A file recorded faster than the prior's rate is low-passed at this fraction of the
@@ -128,27 +145,26 @@ class Denoise:
     from that filtered motion and trades fidelity to the noisy input (``sigma_root`` m,
     ``sigma_angle`` rad; default: the estimated noise) against the prior (times
     ``prior_weight``), the contact terms and joint accelerations (``sigmas.smoothness``,
-    m/s^2); ``setup`` builds that objective and problem. Without ``refine`` the filter's
-    output is the result.
+    m/s^2; by default each joint's sigma is ``acceleration_scale`` times its RMS
+    acceleration over the prior's training clips, ``common.acceleration_sigmas``);
+    ``setup`` builds that objective and problem. The solve's change is added to the
+    filtered file (``with_change``).
+    Without ``refine`` the filter's output is the result.
 
     Why these terms (bench/tasks.py, held-out clips, 3 cm noise, 30 L-BFGS iterations per
     window): the prior with fidelity and contacts alone left the result further from the
     clean clips than the filter (Bandai 1.27 cm against 1.20), and started from the clean
-    clip the solver drifted 1.1 cm away from it: the prior tolerates jerky joints. With the
-    acceleration term the solve reaches 1.09 cm on Bandai (best Butterworth 1.23) with
-    jitter and foot sliding at the clean clips' level. The same solve without the prior
-    reaches 1.09 cm too, and 1.06 against 1.05 with 100 iterations: with the shipped
-    priors, the acceleration and contact terms do the work (bench/results/tasks*.txt).
+    clip the solver drifted 1.1 cm away from it: the prior tolerates jerky joints. One
+    acceleration sigma of 10 m/s^2 for every joint brought Bandai to 1.09 cm (best
+    Butterworth 1.23); a sigma per joint from the data (the trunk about 6.5, hands and
+    feet 10-18, capped at 14) with 30 L-BFGS corrections and 16 cosine steps per window
+    (``denoise_options``) brings it to 1.04 cm, and 1.58 at 5 cm noise (1.73 before), with
+    jitter and foot sliding within 1.2 times the clean clips'. The same solve without the
+    prior ends close to it: with the shipped priors, the acceleration and contact terms
+    do most of the work (bench/results/tasks*.txt).
 
-    Why 30 iterations per window (``SolverOptions.max_iter``): on held-out Bandai clips at
-    the prior's rate 30 / 45 / 60 / 100 give 1.087 / 1.066 / 1.045 / 1.040 cm at 3 cm of
-    noise and 1.728 / 1.681 / 1.670 / 1.648 cm at 5 cm (17 / 12 / 10 / 6 frames per second),
-    but on Bandai files whose every joint is noisy (the ground joint's rotation moves the
-    whole body, so the root is noisy too) the longer solve moves the root away from the
-    filter's: 60 iterations end at 0.95 cm against 0.76 for 30 and 0.69 for the filter
-    alone at 3 cm (one file: root error 0.42 cm filtered, 0.63 after 30, 0.96 after 60,
-    with the local pose unchanged), and a root target taken from the filter does not stop
-    it. Until that drift is mended the shorter solve is the default.
+    Why 30 iterations per window (``SolverOptions.max_iter``): 60 halve the speed for
+    0.01-0.04 cm on held-out Bandai clips (bench/tasks.py, "--iterations 60").
 
     With ``clean_feet`` the foot contacts the prior predicts are then planted by leg IK:
     no sliding, at a cost in fidelity (the IK moves planted feet to where they stand on
@@ -159,8 +175,9 @@ class Denoise:
     prior: object
     sigma_root: float | None = None
     sigma_angle: float | None = None
-    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(smoothness=ACCELERATION_SIGMA))
-    options: SolverOptions = field(default_factory=lambda: SolverOptions(pso=None))
+    sigmas: TermSigmas = field(default_factory=TermSigmas)
+    acceleration_scale: float | None = ACCELERATION_SCALE
+    options: SolverOptions = field(default_factory=lambda: denoise_options())
     cutoff_hz: float | None = None
     clean_feet: bool = False
     refine: bool = True
@@ -201,11 +218,14 @@ class Denoise:
         target, shrink = fidelity_target(source, prior, prep)
         fidelity = PoseFidelityTerm(target.model.root, target.model.rotations, sigma_root * shrink,
                                     sigma_angle * shrink, name="fidelity")
-        objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, self.sigmas),
+        sigmas = self.sigmas
+        if sigmas.smoothness is None and self.acceleration_scale:
+            sigmas = replace(sigmas, smoothness=acceleration_sigmas(prior, self.acceleration_scale))
+        objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, sigmas),
                                  prior_weight=self.prior_weight, prior_min_log_std=self.prior_min_log_std)
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
                     "refine": self.refine, "prior_weight": self.prior_weight,
-                    "smoothness_sigma": self.sigmas.smoothness, "estimated_angle_noise": est_angle,
+                    "smoothness_sigma": sigmas.smoothness, "estimated_angle_noise": est_angle,
                     "estimated_root_noise": est_root, "smoothers": smoothers, "fidelity_noise_scale": shrink,
                     "repair_glitches": self.repair_glitches,
                     "glitches": [{"joint": self.motion.skeleton.names[g.joint], "frames": [g.first, g.stop - 1],

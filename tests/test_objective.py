@@ -80,7 +80,22 @@ def terms():
                                                   FIRST + 4: np.array([0.0, 1.0, 0.2])}, sigma=0.01),
         "contact": ContactTerm([sk.names.index("rFoot"), sk.names.index("lFoot")], np.array([0.05, 0.06])),
         "smoothness": SmoothnessTerm(10.0),
+        "smoothness, one sigma per joint": SmoothnessTerm(list(np.linspace(4.0, 20.0, sk.num_joints))),
     }
+
+
+def test_per_joint_acceleration_sigmas_weigh_each_joint_alone():
+    """The same sigma for every joint is the scalar term; a joint whose sigma doubles
+    pays a quarter of its share."""
+    aa, root, _ = clip_pose()
+    state = state_of(aa, root, torch.zeros(5, 2, dtype=torch.float64))
+    n = state.positions.shape[-2]
+    scalar = SmoothnessTerm(10.0).energy(state)
+    assert torch.allclose(SmoothnessTerm([10.0] * n).energy(state), scalar)
+    alone = [SmoothnessTerm([10.0 if j == k else 1e9 for j in range(n)]).energy(state) for k in range(n)]
+    assert torch.allclose(sum(alone), scalar)
+    doubled = SmoothnessTerm([20.0 if j == 3 else 10.0 for j in range(n)]).energy(state)
+    assert torch.allclose(doubled, scalar - 0.75 * alone[3])
 
 
 @pytest.mark.parametrize("name", list(terms()))

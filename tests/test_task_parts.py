@@ -160,6 +160,7 @@ def test_denoise_cleans_every_joint_at_the_files_rate():
 
 
 def test_a_change_from_the_prior_carries_over_to_the_files_skeleton_and_rate():
+    from motionopt import rotations as R
     from problems.denoise import with_change
 
     clip = bvh.load(DATA / CMU_120)
@@ -169,6 +170,29 @@ def test_a_change_from_the_prior_carries_over_to_the_files_skeleton_and_rate():
     raised = model.with_frames(model.rotations, model.root + np.array([0.0, 0.1, 0.0]))
     moved = with_change(clip, model, raised)
     assert np.allclose(moved.positions() - clip.positions(), [0.0, 0.1, 0.0], atol=1e-4)
+    knee = model.skeleton.names.index("lShin")
+    bend = R.axis_angle_to_quat(torch.tensor([0.3, 0.0, 0.0], dtype=torch.float64)).numpy()
+    rot = model.rotations.copy()
+    rot[:, knee] = R.quat_multiply(torch.from_numpy(rot[:, knee]), torch.from_numpy(bend).expand(len(rot), 4)).numpy()
+    bent = with_change(clip, model, model.with_frames(rot, model.root))
+    j = clip.skeleton.names.index("lShin")
+    turn = R.quat_multiply(R.quat_conjugate(torch.from_numpy(clip.rotations[:, j])), torch.from_numpy(bent.rotations[:, j]))
+    assert np.allclose(np.abs(turn.numpy()), np.abs(bend), atol=1e-5)
+
+
+def test_the_hips_under_a_ground_joint_keep_the_files_position():
+    """A Bandai file's hips hang under the ground joint joint_Root: the solve's turns carry
+    over, its move of the hips does not (it ended further from the clean clip than the filter's)."""
+    from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
+    from problems.denoise import with_change
+
+    from clips import shared_excerpt
+    clip = shared_excerpt("bandai/dataset-1_walk-left_feminine_001.bvh", 0, 60)
+    prior = load_prior_cached(CHECKPOINT_DIR / "bandai-locomotion-ccnet.pt")
+    model = to_model_motion(clip, prior.spec)
+    assert clip.skeleton.names[0] == "joint_Root" and model.skeleton.names[0] == "Hips"
+    raised = model.with_frames(model.rotations, model.root + np.array([0.0, 0.1, 0.0]))
+    assert np.allclose(with_change(clip, model, raised).positions(), clip.positions(), atol=1e-6)
 
 
 def test_denoise_by_default_solves_under_the_prior_and_beats_the_filter_it_starts_from():

@@ -121,6 +121,27 @@ def test_training_calibrates_the_sampling_temperature(trained):
     assert prior.sample_temperature == choose(found).temperature
 
 
+def test_training_stores_each_joints_acceleration_over_its_training_clips(trained):
+    """The RMS acceleration of every modelled joint over the training clips, which the
+    denoising solve scales its acceleration sigmas by: one positive figure per joint, the
+    hands and feet faster than the hips, and recomputed to the same figures."""
+    from motionopt.codec import Codec
+    from motionopt.metrics import acceleration_rms
+
+    prior = load_prior(trained)
+    rms = prior.metadata["joint_acceleration_rms"]
+    names = prior.spec.joints
+    assert len(rms) == len(names) and all(v > 0 for v in rms)
+    assert max(rms[names.index(j)] for j in ("lHand", "rHand", "lFoot", "rFoot")) > rms[0]
+    codec, fps = Codec.of(prior), prior.spec.fps
+    squares = frames = 0
+    for raw in tiny_dataset().train.values():
+        pos = codec.positions(prior.normalizer.normalize(raw).double())
+        squares = squares + acceleration_rms(pos, fps).pow(2) * (len(raw) - 2)
+        frames += len(raw) - 2
+    assert rms == pytest.approx((squares / frames).sqrt().tolist(), abs=2e-3)
+
+
 def test_the_chosen_temperature_keeps_the_data_pace_without_skating():
     found = [Trial(0.1, 0.2, 0.9, 1.0),   # freezes: a fifth of the data's speed
              Trial(0.3, 0.6, 1.8, 1.2),

@@ -66,7 +66,7 @@ def energies_at(objective: MAPObjective, problem: Problem, x: Tensor,
     if x.shape != (len(free), objective.spec.dim) or not bool(torch.isfinite(x).all()):
         raise ValueError(f"x must be finite features ({len(free)}, {objective.spec.dim}) for every frame of "
                          f"the problem; got shape {tuple(x.shape)}")
-    walk = WindowWalk(objective, free, problem.start, options.window, options.overlap)
+    walk = WindowWalk(objective, free, problem.start, options.window, options.overlap, options.basis)
     out: dict[str, float] = {}
     for s in walk.starts:
         win = walk.open(x, s)

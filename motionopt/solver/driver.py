@@ -50,7 +50,7 @@ def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MA
     rf = prior.receptive_field
     p = spec.pose_dim
     temperature = opts.temperature_for(prior)
-    walk = WindowWalk(objective, free, problem.start, opts.window, opts.overlap)
+    walk = WindowWalk(objective, free, problem.start, opts.window, opts.overlap, opts.basis)
     starts = walk.starts
     local_solve = OPTIMIZERS[opts.optimizer]
     t_total = time.perf_counter()

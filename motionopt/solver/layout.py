@@ -13,7 +13,7 @@ from torch import Tensor
 
 from ..features import RootStart, advance
 from ..objective import MAPObjective
-from .window import Window
+from .window import BASIS_SIZE, Window
 
 #: Solved frames decoded with each window (their positions give its first velocities
 #: and accelerations); the root state is advanced up to the first of them.
@@ -45,8 +45,10 @@ class WindowWalk:
     each ``open`` advances it over the frames since the last one only (the sequence
     before a window must not change after the window opens)."""
 
-    def __init__(self, objective: MAPObjective, free: np.ndarray, start: RootStart, window: int, overlap: int):
+    def __init__(self, objective: MAPObjective, free: np.ndarray, start: RootStart, window: int, overlap: int,
+                 basis: int = BASIS_SIZE):
         self.objective = objective
+        self.basis = basis
         self.free = free
         self.window = window
         self.starts = free_window_starts(free, window, overlap)
@@ -65,7 +67,7 @@ class WindowWalk:
             self._committed = lead_from
         lead_raw = norm.denormalize(x[self._committed:s].double()).float()
         context = x[max(0, s - obj.prior.receptive_field):s]
-        return Window(obj, x[s:e], np.arange(s, e), self.free[s:e], context, lead_raw, self._root_state)
+        return Window(obj, x[s:e], np.arange(s, e), self.free[s:e], context, lead_raw, self._root_state, self.basis)
 
     def rebase(self, win: Window) -> None:
         """``win.rebase``, keeping the contact weights of frames an earlier window fixed,

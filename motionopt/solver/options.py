@@ -7,6 +7,7 @@ from typing import Callable
 
 from ..prior import MotionPrior
 from .optimizers import OPTIMIZERS
+from .window import BASIS_SIZE
 
 
 @dataclass
@@ -40,7 +41,11 @@ class SolverOptions:
     max_iter: int = 30
     ftol: float = 1e-7
     gtol: float = 1e-5
+    #: L-BFGS memory (corrections kept).
     history: int = 10
+    #: Cosine components over each window added to its per-frame variables
+    #: (``window.Window``): steps that move many frames together.
+    basis: int = BASIS_SIZE
     # Off by default: in bench/solver.py, against plain L-BFGS given the same time, the swarm
     # lowered the final objective on 0 and the path error on 2 of 10 held-out clips.
     # Pass PSOOptions() to turn it on.
@@ -63,6 +68,8 @@ class SolverOptions:
             raise ValueError(f"unknown optimizer {self.optimizer!r}; choose one of {', '.join(OPTIMIZERS)}")
         if not 0 <= self.overlap < self.window:
             raise ValueError(f"overlap must be in [0, window): got window {self.window}, overlap {self.overlap}")
+        if self.basis < 0 or self.history < 1:
+            raise ValueError(f"basis must be 0 or more and history 1 or more: got {self.basis} and {self.history}")
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,8 @@ from .. import rotations as R
 from ..features import RootStart, decode
 from ..objective import MAPObjective, NonFiniteTermError
 
-#: Cosine components over a window added to the per-frame variables (see ``Window``).
+#: Cosine components over a window added to the per-frame variables (see ``Window``;
+#: ``SolverOptions.basis``).
 BASIS_SIZE = 8
 
 
@@ -86,7 +87,7 @@ class Window:
     """
 
     def __init__(self, objective: MAPObjective, x: Tensor, frames: np.ndarray, free_local: np.ndarray,
-                 context: Tensor, lead_raw: Tensor, start: RootStart):
+                 context: Tensor, lead_raw: Tensor, start: RootStart, basis: int = BASIS_SIZE):
         self.obj = objective
         self.x = x.clone()
         self.frames = frames
@@ -100,7 +101,7 @@ class Window:
         self.n_rot = len(objective.spec.joints)
         self.k = 4 + 3 * self.n_rot
         self.n_free = int(free_local.sum())
-        self.n_basis = min(BASIS_SIZE, self.n_free)
+        self.n_basis = min(basis, self.n_free)
         self.basis = _coarse_basis(self.n_free, self.n_basis) if self.n_free else torch.zeros(0, 0)
         # root offsets live in world space, where a slow cosine is no cheaper for the task
         # terms than a per-frame step: plain orthonormal columns, no preconditioning scale
