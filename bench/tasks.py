@@ -262,7 +262,7 @@ def bench_denoise_files(prior, names: list[str], seconds: float) -> list[str]:
     files = [(n, m[:int(seconds * m.fps)]) for n, m in files]
     rates = ", ".join(sorted({f"{m.fps:g} fps, {m.skeleton.num_joints} joints" for _, m in files}))
     lines = [f"2b. Denoising at the file's rate ({len(files)} held-out files, first {seconds:g} s; {rates}): "
-             "MPJPE over every joint of the file"]
+             "MPJPE and jitter (mean jerk) over every joint of the file"]
     rows = []
     for level in (0.01, 0.03, 0.05):
         clean, noisy, ours, ours_filter, filtered, cutoffs, secs = [], [], [], [], [], [], 0.0
@@ -282,13 +282,17 @@ def bench_denoise_files(prior, names: list[str], seconds: float) -> list[str]:
         def mpjpe_cm(ps: list[np.ndarray]) -> float:
             return float(np.mean([np.linalg.norm(p - c, axis=-1).mean() * 100 for p, c in zip(ps, clean)]))
 
+        def jitter(ps: list[np.ndarray]) -> float:
+            return float(np.mean([float(jerk(torch.from_numpy(p), m.fps)) for p, (_, m) in zip(ps, files)]))
+
         frames = sum(len(c) for c in clean)
-        rows += [[f"{level * 100:g} cm", "noisy", "", mpjpe_cm(noisy)],
+        rows += [[f"{level * 100:g} cm", "clean", "", 0.0, jitter(clean)],
+                 [f"{level * 100:g} cm", "noisy", "", mpjpe_cm(noisy), jitter(noisy)],
                  [f"{level * 100:g} cm", "Butterworth (best per file)", " ".join(c.split()[0] for c in cutoffs) + " Hz",
-                  mpjpe_cm(filtered)]]
-        rows += [[f"{level * 100:g} cm", "per-joint filter (--no-refine)", "", mpjpe_cm(ours_filter)],
-                 [f"{level * 100:g} cm", "ours (MAP, default)", f"{frames / secs:.0f} fr/s", mpjpe_cm(ours)]]
-    return lines + format_table(["noise", "method", "setting", "MPJPE cm"], rows)
+                  mpjpe_cm(filtered), jitter(filtered)]]
+        rows += [[f"{level * 100:g} cm", "per-joint filter (--no-refine)", "", mpjpe_cm(ours_filter), jitter(ours_filter)],
+                 [f"{level * 100:g} cm", "ours (MAP, default)", f"{frames / secs:.0f} fr/s", mpjpe_cm(ours), jitter(ours)]]
+    return lines + format_table(["noise", "method", "setting", "MPJPE cm", "jerk m/s^3"], rows)
 
 
 def bench_glitch(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[str]:
