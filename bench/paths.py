@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import prior as prior_bench  # noqa: E402  (bench/prior.py: the segment measures)
+from tasks import seed_frame  # noqa: E402  (bench/tasks.py: paths drawn where a seed ends)
 from motionopt.motion import Motion  # noqa: E402
 from motionopt.objective import nearest_on_polyline_sq  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
@@ -49,13 +50,7 @@ RESULTS = ROOT / "bench" / "results" / "paths.txt"
 def drawn(seed: Motion, seconds: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Timed paths (points (N, 2), seconds after the seed's end (N,)) lasting ``seconds``,
     drawn in the frame where the seed ends: x to its side, z along its heading."""
-    end = seed.root[-1, [0, 2]]
-    q = seed.rotations[-1, 0]
-    yaw = 2 * np.arctan2(q[2], q[0])
-    fwd, side = np.array([np.sin(yaw), np.cos(yaw)]), np.array([np.cos(yaw), -np.sin(yaw)])
-
-    def place(local: np.ndarray) -> np.ndarray:
-        return end + local[:, :1] * side + local[:, 1:] * fwd
+    place = seed_frame(seed)
 
     def evenly(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The path walked at one pace from start to end in ``seconds``."""

@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -90,16 +91,19 @@ def skating(prior, m: Motion) -> float:
 
 
 # ---- 1. path following ----------------------------------------------------------------
-def drawn_paths(seed: Motion) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
-    """Paths (N, 2) from where the seed ends along its heading, with times (stop and restart)."""
+def seed_frame(seed: Motion) -> Callable[[np.ndarray], np.ndarray]:
+    """Ground points (N, 2) drawn where the seed ends (x to its side, z along its heading)
+    to the seed's world coordinates."""
     end = seed.root[-1, [0, 2]]
     q = seed.rotations[-1, 0]
     yaw = 2 * np.arctan2(q[2], q[0])
     fwd, side = np.array([np.sin(yaw), np.cos(yaw)]), np.array([np.cos(yaw), -np.sin(yaw)])
+    return lambda local: end + local[:, :1] * side + local[:, 1:] * fwd
 
-    def place(local: np.ndarray) -> np.ndarray:
-        return end + local[:, :1] * side + local[:, 1:] * fwd
 
+def drawn_paths(seed: Motion) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """Paths (N, 2) from where the seed ends along its heading, with times (stop and restart)."""
+    place = seed_frame(seed)
     u = np.linspace(0, 1, 60)
     circle = np.stack((1.5 - 1.5 * np.cos(2 * np.pi * u), 1.5 * np.sin(2 * np.pi * u)), -1)
     s_curve = np.stack((0.8 * np.sin(2 * np.pi * u), 4.0 * u), -1)
