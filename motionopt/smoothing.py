@@ -59,6 +59,21 @@ def butterworth(cutoff_hz: float, fps: float, order: int = 2) -> Smoother:
     return Smoother(f"Butterworth {cutoff_hz:g} Hz", lambda y: np.ascontiguousarray(filtfilt(b, a, y, axis=0)), pad + 1)
 
 
+@dataclass(frozen=True)
+class _Constant(Smoother):
+    """The clip's mean at every frame: its matrix has trace 1 at any length."""
+
+    def trace(self, n: int) -> float:
+        return 1.0
+
+
+def constant() -> Smoother:
+    """Every frame replaced by the clip's mean: the smoother for a joint that does not move
+    (Bandai's ground joint joint_Root, whose noisy turns would move the whole body)."""
+    return _Constant("constant (the clip's mean)", lambda y: np.repeat(y.mean(axis=0, keepdims=True), len(y), axis=0),
+                     2)
+
+
 def savitzky_golay(window: int, order: int) -> Smoother:
     """Local polynomial fit of ``order`` over ``window`` frames (odd); keeps peaks that a
     low-pass of the same smoothing would flatten."""
@@ -68,14 +83,15 @@ def savitzky_golay(window: int, order: int) -> Smoother:
 
 @lru_cache(maxsize=16)
 def denoising_family(fps: float) -> tuple[Smoother, ...]:
-    """Butterworth order 2 at 1-12 Hz and Savitzky-Golay filters of orders 2-5 over
-    0.15-2 s: the candidates each joint chooses from. The mix beats either kind alone
-    on held-out clips at 1-5 cm of noise (bench/tasks.py). Windows step by 1/15 s (2
-    frames at 30 fps), so that a 120 fps clip has as many candidates as a 30 fps one."""
+    """Butterworth order 2 at 1-12 Hz, Savitzky-Golay filters of orders 2-5 over 0.15-2 s
+    and the constant: the candidates each joint chooses from. The mix beats either kind
+    alone on held-out clips at 1-5 cm of noise (bench/tasks.py); the constant wins for a
+    joint that does not move. Windows step by 1/15 s (2 frames at 30 fps), so that a 120
+    fps clip has as many candidates as a 30 fps one."""
     lows = [butterworth(fc, fps) for fc in np.arange(1.0, 12.01, 0.5)]
     windows = range(max(5, 2 * int(0.075 * fps) + 1), 2 * int(fps) + 2, 2 * max(1, round(fps / 30)))
     fits = [savitzky_golay(w, o) for w in windows for o in (2, 3, 4, 5) if o < w - 1]
-    return tuple(lows + fits)
+    return tuple(lows + fits + [constant()])
 
 
 def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[Smoother]) -> list[Smoother]:
