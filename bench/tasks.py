@@ -43,8 +43,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Callable
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch

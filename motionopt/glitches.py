@@ -198,8 +198,8 @@ def find_swirls(motion: Motion, angle_noise: float, max_seconds: float = 0.5) ->
     # turning speed (deg/s) into frame t over 1/30 s, so that capture noise at 120 fps
     # does not pass for speed: its turn does not grow with the span, a movement's does
     k = max(1, int(round(motion.fps / 30)))
-    q = aligned_quaternions(motion.rotations)
-    turn = 2 * np.degrees(np.arccos(np.clip(np.abs((q[k:] * q[:-k]).sum(-1)), 0.0, 1.0))) * motion.fps / k
+    q = torch.from_numpy(motion.rotations)
+    turn = np.degrees(R.quat_angle(q[:-k], q[k:]).numpy()) * motion.fps / k
     speed = np.concatenate((np.repeat(turn[:1], k, axis=0), turn))
     longest = max(1, int(round(max_seconds * motion.fps)))
     found = []

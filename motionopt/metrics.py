@@ -15,12 +15,10 @@ def joint_speed(positions: Tensor, fps: float) -> Tensor:
     return (positions[..., 1:, :, :] - positions[..., :-1, :, :]).norm(dim=-1) * fps
 
 
-def acceleration_rms(positions: Tensor, fps: float) -> Tensor:
-    """Root mean square over frames of every joint's acceleration (m/s^2), shape
-    ``(..., J)``, by second differences."""
+def acceleration(positions: Tensor, fps: float) -> Tensor:
+    """Every joint's acceleration (m/s^2) by second differences, shape ``(..., T-2, J, 3)``."""
     p = positions
-    acc = (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * fps ** 2
-    return acc.pow(2).sum(-1).mean(-2).sqrt()
+    return (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * fps ** 2
 
 
 def jerk(positions: Tensor, fps: float) -> Tensor:

@@ -18,6 +18,7 @@ from torch import Tensor
 
 from .features import FeatureSpec, RootStart, decode_matrices
 from .kinematics import fk_matrices
+from .metrics import acceleration
 from .prior import MotionPrior
 from .rotations import quat_to_matrix
 from .skeleton import Skeleton
@@ -78,7 +79,7 @@ class Term:
         return {}
 
 
-def _gaussian(residual_sq: Tensor, sigma: float) -> Tensor:
+def _gaussian(residual_sq: Tensor, sigma: float | Tensor) -> Tensor:
     return residual_sq / (2.0 * sigma * sigma)
 
 
@@ -316,10 +317,8 @@ class SmoothnessTerm(Term):
     name: str = "smoothness"
 
     def energy(self, state: WindowState) -> Tensor:
-        p = state.positions[..., max(state.lead - 2, 0):, :, :]
-        acc = (p[..., 2:, :, :] - 2 * p[..., 1:-1, :, :] + p[..., :-2, :, :]) * state.fps ** 2
-        sigma = torch.as_tensor(self.sigma, dtype=acc.dtype)
-        return (acc.pow(2).sum(-1) / (2 * sigma * sigma)).sum((-1, -2))
+        acc = acceleration(state.positions[..., max(state.lead - 2, 0):, :, :], state.fps)
+        return _gaussian(acc.pow(2).sum(-1), torch.as_tensor(self.sigma, dtype=acc.dtype)).sum((-1, -2))
 
 
 @dataclass

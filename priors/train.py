@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from motionopt.codec import Codec
 from motionopt.dataset import MotionDataset
-from motionopt.metrics import acceleration_rms
+from motionopt.metrics import acceleration
 from motionopt.naturalness import METADATA_KEY, HumanRange
 
 from .ccnet import CCNetConfig, CCNetPrior
@@ -291,11 +291,9 @@ def store_joint_acceleration(out: Path, clips: Iterable[Tensor]) -> None:
     codec, fps = Codec.of(saved), saved.spec.fps
     squares, frames = 0.0, 0
     for raw in clips:
-        if len(raw) < 3:
-            continue
-        pos = codec.positions(saved.normalizer.normalize(raw).double())
-        squares = squares + acceleration_rms(pos, fps).pow(2) * (len(raw) - 2)
-        frames += len(raw) - 2
+        acc = acceleration(codec.positions(saved.normalizer.normalize(raw).double()), fps)
+        squares = squares + acc.pow(2).sum(-1).sum(0)
+        frames += len(acc)
     saved.metadata[ACCELERATION_KEY] = [round(float(v), 3) for v in (squares / frames).sqrt()]
     log.info("joint accelerations, RMS over the training clips (m/s^2): %s", saved.metadata[ACCELERATION_KEY])
     save_prior(saved, out)

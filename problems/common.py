@@ -18,6 +18,7 @@ from motionopt.motion import Motion
 from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
+from priors.train import ACCELERATION_KEY
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +119,7 @@ def acceleration_sigmas(prior, scale: float) -> float | list[float]:
     over the prior's training clips (``priors.train.ACCELERATION_KEY`` in its metadata),
     within ``ACCELERATION_FLOOR`` and ``ACCELERATION_CAP``, or ``ACCELERATION_SIGMA`` for
     every joint of a checkpoint without them."""
-    rms = prior.metadata.get("joint_acceleration_rms")
+    rms = prior.metadata.get(ACCELERATION_KEY)
     if rms is None:
         return ACCELERATION_SIGMA
     return [min(max(scale * float(r), ACCELERATION_FLOOR), ACCELERATION_CAP) for r in rms]

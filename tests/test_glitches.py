@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
+from motionopt import rotations as R
 from motionopt.glitches import fill_swirls, find_glitches, find_swirls, pose_distance, turn_back
 from motionopt.noise import glitch, position_noise
 from problems.denoise import estimate_noise
@@ -87,8 +89,8 @@ def test_the_real_shin_swirl_of_salsa_15_is_found_and_filled_in():
     burst = slice(1790 - 1500, 1820 - 1500)
     assert pose_distance(m)[burst, shin].max() > 50
     repaired = fill_swirls(m, found)
-    q = repaired.rotations[:, shin]
-    turn = 2 * np.degrees(np.arccos(np.clip(np.abs((q[1:] * q[:-1]).sum(-1)), 0, 1))) * m.fps
+    q = torch.from_numpy(repaired.rotations[:, shin])
+    turn = np.degrees(R.quat_angle(q[:-1], q[1:]).numpy()) * m.fps
     assert turn[burst].max() < 2 * np.percentile(turn, 99)
     assert pose_distance(repaired)[burst, shin].max() < 5
     untouched = [j for j in range(len(names)) if j not in {w.joint for w in found}]
