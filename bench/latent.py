@@ -16,7 +16,7 @@ clips named in its metadata, loaded from the data folder named there:
    floor). Features: the 32-dimensional code of a small convolutional autoencoder
    trained here on the training clips only.
 3. Semantic editing on 256 sampled motions: for each computed attribute and strength
-   (standard deviations of W along the fitted direction), the mean of every attribute
+   (standard deviations of the codes along the fitted direction), the mean of every attribute
    score and the mean horizontal root-path change (cm) against strength 0. The edited
    attribute must move monotonically, and each other attribute must move less than half
    as much as the edited one, in standard deviations of the unedited scores. Style
@@ -25,6 +25,15 @@ clips named in its metadata, loaded from the data folder named there:
 4. Tasks on held-out clips, latent inversion against the autoregressive MAP tasks of
    the same name: denoising (accuracy against the clean clip) and in-betweening of a
    1.5 s gap (accuracy on the gap), with seconds per clip.
+5. What a user sees, on the first 10 s of 4 held-out clips (spread over the list), each
+   figure at the prior's rate on its joints: the round trip (local joint error, root
+   path distance, seconds) with the encoder alone and refined; ``denoise --method
+   latent`` at 1, 3 and 5 cm of joint noise against the noisy input and the default
+   denoiser; edits at strength +2 against -2 in user terms (mean hip height and right
+   hand height in cm, root speed in percent, the style classifier's probability of a
+   style) with the root path change; ``vary`` (mean pairwise joint distance of 4
+   variations, and their NLL per frame under the autoregressive prior beside the
+   input's); ``interpolate`` (how far each end is from its input).
 
 Run ``python bench/latent.py [CHECKPOINT ...] [--threads N]``; the report is printed
 and, for the shipped checkpoints, written to bench/results/latent.txt.
@@ -39,19 +48,20 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from motionopt import attributes as A
 from motionopt import bvh
 from motionopt.codec import Codec
 from motionopt.dataset import build_dataset
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
-from motionopt.noise import capture_noise
+from motionopt.noise import capture_noise, position_noise
 from motionopt.solver import InversionOptions, refine, regulariser
 from motionopt.table import format_table
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
 from priors.heldout import data_folder, held_out_clips
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, infill, reconstruct
+from problems.latent import FidelityTerm, LatentTask, infill, interpolate, latent_edit, reconstruct, vary
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "latent.txt"
@@ -168,7 +178,7 @@ def sampling(prior, ar_path: Path | None, train: Tensor, val: Tensor, n: int = 5
     sets: list[tuple[str, Tensor]] = []
     sets.append(("training windows (floor)", train[torch.randperm(len(train), generator=g)[:n]]))
     t0 = time.perf_counter()
-    sets.append(("latent prior samples", prior.generate(prior.broadcast(prior.sample_w(n, g)))))
+    sets.append(("latent prior samples", prior.generate(prior.sample_wplus(n, g))))
     t_gen = (time.perf_counter() - t0) / n
     notes = [f"latent prior: {t_gen * 1000:.2f} ms per generated window"]
     if ar_path is not None and ar_path.exists():
@@ -208,7 +218,7 @@ def semantic(prior) -> list[str]:
     dirs = directions_of(prior)
     scorer = AttributeScorer(prior)
     g = torch.Generator().manual_seed(3)
-    w = prior.broadcast(prior.sample_w(256, g))
+    w = prior.sample_wplus(256, g)
     base_x = prior.generate(w)
     base = scorer(base_x)
     base_root = scorer.root_path(base_x)
@@ -359,6 +369,143 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
     return lines
 
 
+def round_trip_errors(prior, out: Motion, clean: Motion) -> tuple[float, float]:
+    """Local joint error (mm: root-relative positions, world axes) and mean horizontal
+    root path distance (cm) of ``out`` from ``clean``, at the prior's rate on its joints."""
+    codec = Codec.of(prior)
+    a, b = codec.model_motion(out).positions(), codec.model_motion(clean).positions()
+    n = min(len(a), len(b))
+    a, b = torch.from_numpy(a[:n]), torch.from_numpy(b[:n])
+    return local_position_error_mm(a, b), float((a[:, 0, [0, 2]] - b[:, 0, [0, 2]]).norm(dim=-1).mean() * 100)
+
+
+def user_measures(prior, motion: Motion) -> dict[str, float]:
+    """Mean hip height and right-hand height (cm) and mean root speed (m/s) of a motion,
+    at the prior's rate on its joints."""
+    sk = prior.skeleton
+    hand = A.right_arm(sk.names, sk.parents)[2]
+    pos = Codec.of(prior).model_motion(motion).positions()
+    speed = np.linalg.norm(np.diff(pos[:, 0, [0, 2]], axis=0), axis=-1).mean() * prior.spec.fps
+    return {"hip_cm": float(pos[:, 0, 1].mean() * 100), "hand_cm": float(pos[:, hand, 1].mean() * 100),
+            "speed": float(speed)}
+
+
+def spread(clips: list[str], n: int) -> list[str]:
+    """``n`` clips spread evenly over the list."""
+    return [clips[int(i * len(clips) / n)] for i in range(min(n, len(clips)))]
+
+
+def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
+                 seconds: float = 10.0) -> list[str]:
+    """Section 5 (see the module docstring)."""
+    from problems.denoise import Denoise
+    from priors.score import score_motion
+
+    ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
+    motions = [bvh.load(data / name) for name in spread(clips, 4)]
+    motions = [m[: int(seconds * m.fps)] for m in motions]
+    rows: dict[str, list[list[float]]] = {}
+
+    def record(name: str, *values: float) -> None:
+        rows.setdefault(name, []).append(list(values))
+
+    for i, clip in enumerate(motions):
+        for label, opts in (("encoder", InversionOptions()), (f"encoder + L-BFGS {iters}",
+                                                               InversionOptions(refine_iters=iters))):
+            t0 = time.perf_counter()
+            out = reconstruct(prior, clip, opts).motion
+            record(f"round trip: {label}", *round_trip_errors(prior, out, clip), time.perf_counter() - t0)
+        for level in (0.01, 0.03, 0.05):
+            noisy, _ = position_noise(clip, level, seed=i)
+            tag = f"denoise {level * 100:g} cm"
+            record(f"{tag}: noisy input", model_error_mm(prior, noisy, clip) / 10, 0.0)
+            for label, opts in (("latent", InversionOptions()), (f"latent + L-BFGS {iters}",
+                                                                  InversionOptions(refine_iters=iters))):
+                t0 = time.perf_counter()
+                out = LatentTask(noisy, prior, options=opts).solve().motion
+                record(f"{tag}: {label}", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
+            if ar is not None:
+                t0 = time.perf_counter()
+                out = Denoise(noisy, ar).solve().motion
+                record(f"{tag}: default denoiser", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
+    lines = [f"5. What a user sees: the first {seconds:g} s of {len(motions)} held-out clips "
+             f"({', '.join(spread(clips, 4))}); {iters} L-BFGS iterations where refined"]
+    lines += format_table(["case", "clips", "local mm / error cm", "root path cm", "s/clip"],
+                          [[k, len(v), f"{np.mean([r[0] for r in v]):.1f}",
+                            f"{np.mean([r[1] for r in v]):.1f}" if len(v[0]) == 3 else "",
+                            f"{np.mean([r[-1] for r in v]):.2f}"] for k, v in rows.items()])
+    lines += edit_figures(prior, motions)
+    lines += variation_figures(prior, ar, motions, score_motion)
+    return lines
+
+
+def edit_figures(prior, motions: list[Motion]) -> list[str]:
+    """Edits at +-2 of each attribute on held-out clips, in user terms."""
+    dirs = directions_of(prior)
+    classifier = style_classifier_of(prior.metadata)
+    codec = Codec.of(prior)
+    measure = {"crouch": ("hip_cm", "mean hip height, cm"), "gral": ("hand_cm", "mean right-hand height, cm"),
+               "root_speed": ("speed", "mean root speed, percent of -2's")}
+    rows = []
+    style_moves = []
+    for name, d in sorted(dirs.items()):
+        if name not in measure and not name.startswith("style:"):
+            continue
+        moves, paths = [], []
+        for clip in motions:
+            ends = {s: latent_edit(prior, clip, name, s) for s in (-2.0, 0.0, 2.0)}
+            root = {s: codec.model_motion(r.motion).positions()[:, 0, [0, 2]] for s, r in ends.items()}
+            paths.append(max(float(np.linalg.norm(root[s] - root[0.0], axis=-1).mean() * 100) for s in (-2.0, 2.0)))
+            if name in measure:
+                key = measure[name][0]
+                lo, hi = (user_measures(prior, ends[s].motion)[key] for s in (-2.0, 2.0))
+                moves.append(100 * (hi - lo) / max(abs(lo), 1e-9) if key == "speed" else hi - lo)
+            else:
+                style = name.split(":", 1)[1]
+                lo, hi = (float(classifier.score(clip_windows([codec.features(ends[s].motion)], prior.window,
+                                                              prior.window // 2), style).mean())
+                          if classifier is not None else float("nan") for s in (-2.0, 2.0))
+                moves.append(hi - lo)
+        if name in measure:
+            rows.append([name, measure[name][1], f"{np.mean(moves):+.1f}", f"{np.mean(paths):.1f}"])
+        else:
+            style_moves.append((name, float(np.mean(moves)), float(np.mean(paths))))
+    lines = ["   edits, strength +2 against -2 (change of the measure; root path: mean horizontal distance from "
+             "strength 0, cm, the larger of +-2)"]
+    lines += format_table(["edit", "measure", "change", "root path cm"], rows)
+    if style_moves:
+        lines.append("   styles: probability the style classifier gives the style, +2 minus -2 (mean over clips): " +
+                     ", ".join(f"{n.split(':')[1]} {m:+.2f}" for n, m, _ in style_moves))
+        lines.append(f"   styles raising the probability by at least 0.3: {sum(m >= 0.3 for _, m, _ in style_moves)} "
+                     f"of {len(style_moves)}; root path change up to {max(p for *_, p in style_moves):.1f} cm")
+    return lines
+
+
+def variation_figures(prior, ar, motions: list[Motion], score_motion) -> list[str]:
+    """``vary`` and ``interpolate`` on held-out clips."""
+    codec = Codec.of(prior)
+    dist, nll, nll_in, ends = [], [], [], []
+    for clip in motions:
+        outs = vary(prior, clip, 4, 0.3)
+        pos = [codec.model_motion(r.motion).positions() for r in outs]
+        pos = [p - p[:, :1] * [1, 0, 1] for p in pos]  # root-relative horizontally, as a viewer compares poses
+        dist.append(np.mean([np.linalg.norm(a - b, axis=-1).mean() * 100
+                             for i, a in enumerate(pos) for b in pos[i + 1:]]))
+        if ar is not None:
+            nll.append(np.mean([score_motion(ar, r.motion).nll_per_frame for r in outs]))
+            nll_in.append(score_motion(ar, clip).nll_per_frame)
+    for a, b in zip(motions, motions[1:] + motions[:1]):
+        res = interpolate(prior, a, b, 3)
+        ends.append((round_trip_errors(prior, res[0].motion, a)[0], round_trip_errors(prior, res[-1].motion, b)[0]))
+    lines = [f"   vary (4 variations, sigma 0.3): mean pairwise joint distance {np.mean(dist):.1f} cm"]
+    if nll:
+        lines[-1] += (f"; NLL per frame under the autoregressive prior {np.mean(nll):.1f} against the input's "
+                      f"{np.mean(nll_in):.1f}")
+    lines.append(f"   interpolate (3 steps): local joint error of the first end to A {np.mean([e[0] for e in ends]):.1f} "
+                 f"mm, of the last end to B {np.mean([e[1] for e in ends]):.1f} mm")
+    return lines
+
+
 def bench(path: Path, iters: int, reg: float) -> list[str]:
     prior = load_prior(path)
     meta = prior.metadata
@@ -378,6 +525,7 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
     lines += sampling(prior, ar, clip_windows(train_x, prior.window, 8), clip_windows(val_x, prior.window, 8))
     lines += semantic(prior)
     lines += tasks(prior, ar, data, meta["validation_clips"])
+    lines += user_figures(prior, ar, data, meta["validation_clips"], iters)
     return lines
 
 

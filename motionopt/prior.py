@@ -83,15 +83,15 @@ class MotionPrior(Protocol):
 class LatentMotionPrior(Protocol):
     """A generator of fixed-length windows driven by W+ codes, with encoders into W+
     (``priors.latent.LatentPrior``). Windows are normalised features (B, window, D);
-    W+ codes are (B, num_ws, w_dim), one w per generator layer; contact dimensions of
-    generated windows hold probabilities."""
+    W+ codes are (B, num_ws, w_dim), one code per stretch of frames of the window;
+    contact dimensions of generated windows hold probabilities."""
 
     spec: FeatureSpec
     normalizer: Normalizer
     skeleton: Skeleton
     metadata: dict
-    #: Principal directions of W (rows, largest first) and their standard deviations:
-    #: the subspace the inversion's particle swarm searches.
+    #: Principal directions of single codes (rows, largest first) and their standard
+    #: deviations: the subspace the inversion's particle swarm searches.
     w_components: Tensor
     w_scales: Tensor
 
@@ -101,14 +101,10 @@ class LatentMotionPrior(Protocol):
 
     @property
     def num_ws(self) -> int:
-        """Style codes per W+ code (one per generator layer)."""
+        """Codes per W+ code (one per stretch of frames)."""
 
-    @property
-    def mean_w(self) -> Tensor:
-        """Mean (w_dim,) of the mapping network's outputs."""
-
-    def mapping(self, z: Tensor) -> Tensor:
-        """w (B, w_dim) of latent noise z (B, z_dim)."""
+    def sample_wplus(self, n: int, generator: torch.Generator | None = None, truncation: float = 1.0) -> Tensor:
+        """n W+ codes (n, num_ws, w_dim) drawn from the prior's distribution of codes."""
 
     def generate(self, wplus: Tensor) -> Tensor:
         """Windows (B, window, D) of W+ codes; differentiable."""

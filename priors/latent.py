@@ -1,20 +1,27 @@
-"""Latent motion prior after MoDi (Raab et al. 2023, sections 3.3-3.4): a StyleGAN2-like
-generator over fixed windows of feature frames, with encoders into its W+ space.
+"""Latent motion prior: a temporal convolutional autoencoder whose latent codes, one per
+``2**levels`` frames of a window, form the W+ code that tasks invert, edit and sample.
 
-- ``mapping``: an MLP z -> w (equalised learning rate, as StyleGAN).
-- ``synthesis``: from a learned constant of ``window / 2**(levels-1)`` frames, each level
-  doubles the frames (linear upsampling) and applies modulated/demodulated temporal
-  convolutions; every convolution reads its own style code, so W+ holds ``num_ws`` codes.
-  Output layers per level add into a skip output (StyleGAN2's "toRGB" skips).
-  This is a plain temporal convolution over the feature vector, not MoDi's skeleton-aware
-  convolution, and it has no noise inputs: a W+ code fixes the motion.
-- ``encoder``/``masked_encoder``: convolutional networks that map a window (the second
-  also takes a mask of seen frames; unseen frames are zeroed) to W+, as offsets from
-  the mean w.
-- ``Discriminator`` is used in training only and is not part of the shipped checkpoint.
+MoDi (Raab et al. 2023, sections 3.3-3.4) generates windows from a learned constant
+whose only input is one style code per layer, and finds codes for a motion with an
+encoder trained afterwards against the frozen generator. Trained on this CPU that
+design reproduced held-out motion to 11-13 cm (joint positions relative to the root),
+and trained as an autoencoder it still stalled at 12 cm: a motion's timing had to pass
+through per-channel scales of a fixed constant. Here the code itself is a sequence:
 
-Features are the normalised vectors of ``motionopt.features``; the generator outputs
-contact logits in the contact dimensions, which ``generate`` turns into probabilities.
+- ``encoder``: residual convolutions that halve the frames ``levels`` times, then a 1x1
+  convolution to ``w_dim`` channels: a window (B, window, D) -> codes (B, num_ws, w_dim),
+  one per ``2**levels`` frames (4 frames, 0.13 s at 30 fps, by default).
+- ``generator``: the mirror image, doubling the frames ``levels`` times (linear
+  upsampling and residual convolutions) back to (B, window, D); contact dimensions hold
+  logits, which ``generate`` turns into probabilities.
+- ``masked_encoder``: the encoder with a mask channel (unseen frames zeroed), trained
+  against the frozen generator for completion and in-betweening.
+
+Trained with noise on the codes and a penalty on their size (``priors.train_latent``),
+the codes fill a smooth region that a Gaussian describes: ``fit_code_statistics``
+stores its mean and principal directions over whole codes (``sample_wplus`` draws from
+it) and over single codes (``whiten``, the inversion's regulariser, its particle swarm
+and ``vary`` use those).
 """
 from __future__ import annotations
 
@@ -34,183 +41,61 @@ _SQRT2 = math.sqrt(2.0)
 
 @dataclass(frozen=True)
 class LatentConfig:
-    """Architecture. ``channels`` has one width per synthesis level (coarse to fine);
-    ``encoder_channels`` one width per downsampling block of encoders and discriminator."""
+    """Architecture. ``channels`` has one width per level, finest first (the encoder's
+    order; the generator runs them in reverse); ``sample_components`` is how many
+    principal directions of whole codes the sampling Gaussian keeps."""
 
     window: int = 64
-    z_dim: int = 128
-    w_dim: int = 128
-    mapping_layers: int = 4
-    mapping_lr_mul: float = 0.01
-    channels: tuple[int, ...] = (192, 192, 128, 96, 64)
+    w_dim: int = 64
+    channels: tuple[int, ...] = (128, 256)
     kernel_size: int = 3
-    encoder_channels: tuple[int, ...] = (64, 96, 128, 128)
-    encoder_hidden: int = 256
+    sample_components: int = 256
 
     @property
     def levels(self) -> int:
         return len(self.channels)
 
     @property
-    def base_frames(self) -> int:
-        return self.window // 2 ** (self.levels - 1)
-
-    @property
     def num_ws(self) -> int:
-        """Style codes in W+: one per convolution plus one for the last output layer."""
-        return 2 * self.levels
+        """Codes per window: one per ``2**levels`` frames."""
+        return self.window // 2 ** self.levels
 
     def __post_init__(self) -> None:
-        if self.window % 2 ** (self.levels - 1) or self.base_frames < 2:
-            raise ValueError(f"window {self.window} must be a multiple of {2 ** (self.levels - 1)} "
-                             f"(at least 2 frames at the coarsest of {self.levels} levels)")
-        if self.window % 2 ** len(self.encoder_channels):
-            raise ValueError(f"window {self.window} must be divisible by 2**{len(self.encoder_channels)}")
+        if self.window % 2 ** self.levels or self.num_ws < 2:
+            raise ValueError(f"window {self.window} must be a multiple of {2 ** self.levels} "
+                             f"(at least 2 codes after {self.levels} levels that halve the frames)")
 
     @classmethod
     def from_dict(cls, d: dict) -> "LatentConfig":
         d = dict(d)
-        for k in ("channels", "encoder_channels"):
-            d[k] = tuple(d[k])
+        d["channels"] = tuple(d["channels"])
         return cls(**d)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-class EqualLinear(nn.Module):
-    """Linear layer with equalised learning rate (weights scaled at run time)."""
-
-    def __init__(self, cin: int, cout: int, bias_init: float = 0.0, lr_mul: float = 1.0, activate: bool = False):
-        super().__init__()
-        self.weight = nn.Parameter(torch.randn(cout, cin) / lr_mul)
-        self.bias = nn.Parameter(torch.full((cout,), float(bias_init) / lr_mul))
-        self.scale, self.lr_mul, self.activate = lr_mul / math.sqrt(cin), lr_mul, activate
-
-    def forward(self, x: Tensor) -> Tensor:
-        out = Fn.linear(x, self.weight * self.scale, self.bias * self.lr_mul)
-        return Fn.leaky_relu(out, 0.2) * _SQRT2 if self.activate else out
+def _block(cin: int, cout: int, kernel: int) -> nn.ModuleDict:
+    return nn.ModuleDict({"conv1": nn.Conv1d(cin, cout, kernel, padding=kernel // 2),
+                          "conv2": nn.Conv1d(cout, cout, kernel, padding=kernel // 2),
+                          "skip": nn.Conv1d(cin, cout, 1, bias=False)})
 
 
-class ModulatedConv(nn.Module):
-    """Temporal convolution whose input channels are scaled by a style from w, then
-    demodulated so every output channel has unit expected variance (StyleGAN2 Eq. 1-3).
-
-    Implemented as scale-input, shared convolution, scale-output, which equals the
-    per-sample modulated kernel."""
-
-    def __init__(self, cin: int, cout: int, kernel: int, w_dim: int, demodulate: bool = True,
-                 upsample: bool = False, activate: bool = True):
-        super().__init__()
-        self.weight = nn.Parameter(torch.randn(cout, cin, kernel))
-        self.bias = nn.Parameter(torch.zeros(cout))
-        self.affine = EqualLinear(w_dim, cin, bias_init=1.0)
-        self.scale = 1.0 / math.sqrt(cin * kernel)
-        self.demodulate, self.upsample, self.activate = demodulate, upsample, activate
-
-    def forward(self, x: Tensor, w: Tensor) -> Tensor:
-        s = self.affine(w)  # (B, cin)
-        weight = self.weight * self.scale
-        if self.upsample:
-            x = Fn.interpolate(x, scale_factor=2, mode="linear", align_corners=False)
-        out = Fn.conv1d(x * s[:, :, None], weight, padding=weight.shape[-1] // 2)
-        if self.demodulate:
-            d = torch.rsqrt((s * s) @ weight.pow(2).sum(-1).t() + 1e-8)  # (B, cout)
-            out = out * d[:, :, None]
-        out = out + self.bias[None, :, None]
-        return Fn.leaky_relu(out, 0.2) * _SQRT2 if self.activate else out
-
-
-class Synthesis(nn.Module):
-    """Constant -> levels of modulated convolutions -> features (B, D, window)."""
-
-    def __init__(self, config: LatentConfig, out_dim: int):
-        super().__init__()
-        c, k, wd = config.channels, config.kernel_size, config.w_dim
-        self.const = nn.Parameter(torch.randn(c[0], config.base_frames))
-        self.convs = nn.ModuleList([ModulatedConv(c[0], c[0], k, wd)])
-        self.outs = nn.ModuleList([ModulatedConv(c[0], out_dim, 1, wd, demodulate=False, activate=False)])
-        for i in range(1, config.levels):
-            self.convs.append(ModulatedConv(c[i - 1], c[i], k, wd, upsample=True))
-            self.convs.append(ModulatedConv(c[i], c[i], k, wd))
-            self.outs.append(ModulatedConv(c[i], out_dim, 1, wd, demodulate=False, activate=False))
-
-    def forward(self, ws: Tensor) -> Tensor:
-        """``ws (B, num_ws, w_dim)`` -> (B, D, window). Convolution i reads ws[:, i]; the
-        output layer of level l reads the code after its last convolution."""
-        x = self.convs[0](self.const[None].expand(len(ws), -1, -1), ws[:, 0])
-        skip = self.outs[0](x, ws[:, 1])
-        for lvl in range(1, len(self.outs)):
-            x = self.convs[2 * lvl - 1](x, ws[:, 2 * lvl - 1])
-            x = self.convs[2 * lvl](x, ws[:, 2 * lvl])
-            skip = Fn.interpolate(skip, scale_factor=2, mode="linear", align_corners=False) + \
-                self.outs[lvl](x, ws[:, 2 * lvl + 1])
-        return skip
-
-
-class ConvTrunk(nn.Module):
-    """Residual blocks that halve the frames each time: the shared shape of the
-    discriminator and the encoders. (B, cin, T) -> (B, C_last, T / 2**blocks)."""
-
-    def __init__(self, cin: int, channels: tuple[int, ...], kernel: int = 3):
-        super().__init__()
-        self.inp = nn.Conv1d(cin, channels[0], 1)
-        self.blocks = nn.ModuleList()
-        prev = channels[0]
-        for c in channels:
-            self.blocks.append(nn.ModuleDict({
-                "conv1": nn.Conv1d(prev, prev, kernel, padding=kernel // 2),
-                "conv2": nn.Conv1d(prev, c, kernel, padding=kernel // 2),
-                "skip": nn.Conv1d(prev, c, 1, bias=False),
-            }))
-            prev = c
-
-    def forward(self, x: Tensor) -> Tensor:
-        h = Fn.leaky_relu(self.inp(x), 0.2)
-        for b in self.blocks:
-            y = Fn.leaky_relu(b["conv1"](h), 0.2)
-            y = Fn.avg_pool1d(Fn.leaky_relu(b["conv2"](y), 0.2), 2)
-            h = (y + Fn.avg_pool1d(b["skip"](h), 2)) / _SQRT2
-        return h
-
-
-class Discriminator(nn.Module):
-    """Real/fake score of a window (B, T, D): residual trunk, minibatch std, linear head."""
-
-    def __init__(self, config: LatentConfig, in_dim: int):
-        super().__init__()
-        self.trunk = ConvTrunk(in_dim, config.encoder_channels, config.kernel_size)
-        c = config.encoder_channels[-1]
-        frames = config.window // 2 ** len(config.encoder_channels)
-        self.final = nn.Conv1d(c + 1, c, 3, padding=1)
-        self.head = nn.Sequential(nn.Linear(c * frames, config.encoder_hidden), nn.LeakyReLU(0.2),
-                                  nn.Linear(config.encoder_hidden, 1))
-
-    def forward(self, x: Tensor) -> Tensor:
-        h = self.trunk(x.transpose(1, 2))
-        group = min(4, len(h))
-        if len(h) % group:
-            group = 1
-        y = h.reshape(group, -1, *h.shape[1:])
-        std = torch.sqrt(y.var(0, unbiased=False) + 1e-8).mean(dim=(1, 2))  # (B/group,)
-        std = std.repeat(group)[:, None, None].expand(-1, 1, h.shape[-1])
-        h = Fn.leaky_relu(self.final(torch.cat((h, std), 1)), 0.2)
-        return self.head(h.flatten(1)).squeeze(-1)
+def _residual(b: nn.ModuleDict, h: Tensor) -> Tensor:
+    y = Fn.leaky_relu(b["conv2"](Fn.leaky_relu(b["conv1"](h), 0.2)), 0.2)
+    return (y + b["skip"](h)) / _SQRT2
 
 
 class Encoder(nn.Module):
-    """Window (B, T, D) [and mask (B, T)] -> W+ offsets (B, num_ws, w_dim)."""
+    """Window (B, T, D) [and mask (B, T)] -> codes (B, T / 2**levels, w_dim)."""
 
     def __init__(self, config: LatentConfig, in_dim: int, masked: bool = False):
         super().__init__()
         self.masked = masked
-        self.trunk = ConvTrunk(in_dim + int(masked), config.encoder_channels, config.kernel_size)
-        frames = config.window // 2 ** len(config.encoder_channels)
-        self.head = nn.Sequential(nn.Linear(config.encoder_channels[-1] * frames, config.encoder_hidden),
-                                  nn.LeakyReLU(0.2), nn.Linear(config.encoder_hidden, config.num_ws * config.w_dim))
-        nn.init.zeros_(self.head[-1].weight)
-        nn.init.zeros_(self.head[-1].bias)
-        self.shape = (config.num_ws, config.w_dim)
+        c = config.channels
+        self.inp = nn.Conv1d(in_dim + int(masked), c[0], 1)
+        self.blocks = nn.ModuleList(_block(c[max(i - 1, 0)], c[i], config.kernel_size) for i in range(len(c)))
+        self.out = nn.Conv1d(c[-1], config.w_dim, 1)
 
     def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
         if self.masked:
@@ -218,15 +103,36 @@ class Encoder(nn.Module):
                 raise ValueError("the masked encoder needs a mask of seen frames")
             m = mask.to(x)[..., None]
             x = torch.cat((x * m, m), dim=-1)
-        return self.head(self.trunk(x.transpose(1, 2)).flatten(1)).reshape(len(x), *self.shape)
+        h = Fn.leaky_relu(self.inp(x.transpose(1, 2)), 0.2)
+        for b in self.blocks:
+            h = Fn.avg_pool1d(_residual(b, h), 2)
+        return self.out(h).transpose(1, 2).contiguous()  # contiguous: L-BFGS views the codes' gradient
+
+
+class Generator(nn.Module):
+    """Codes (B, num_ws, w_dim) -> features (B, window, D): the encoder's mirror image."""
+
+    def __init__(self, config: LatentConfig, out_dim: int):
+        super().__init__()
+        c = config.channels[::-1]
+        self.inp = nn.Conv1d(config.w_dim, c[0], 1)
+        self.blocks = nn.ModuleList(_block(c[max(i - 1, 0)], c[i], config.kernel_size) for i in range(len(c)))
+        self.out = nn.Conv1d(c[-1], out_dim, 1)
+
+    def forward(self, codes: Tensor) -> Tensor:
+        h = Fn.leaky_relu(self.inp(codes.transpose(1, 2)), 0.2)
+        for b in self.blocks:
+            h = _residual(b, Fn.interpolate(h, scale_factor=2, mode="linear", align_corners=False))
+        return self.out(h).transpose(1, 2)
 
 
 class LatentPrior(nn.Module):
     """The latent prior; implements ``motionopt.prior.LatentMotionPrior``.
 
-    Buffers ``w_mean``, ``w_components`` (rows: principal directions of W, largest first)
-    and ``w_scales`` (their standard deviations) describe the mapping network's output
-    distribution; training fills them from samples.
+    Buffers (filled by ``fit_code_statistics`` from the codes of training windows):
+    ``w_mean``, ``w_components`` (rows: principal directions, largest first) and
+    ``w_scales`` (their standard deviations) describe single codes (w_dim);
+    ``wplus_mean``, ``wplus_components`` and ``wplus_scales`` whole W+ codes, flattened.
     """
 
     def __init__(self, spec: FeatureSpec, normalizer: Normalizer, skeleton: Skeleton,
@@ -235,16 +141,17 @@ class LatentPrior(nn.Module):
         self.spec, self.normalizer, self.skeleton = spec, normalizer, skeleton
         self.config = config
         self.metadata = dict(metadata or {})
-        layers = [EqualLinear(config.z_dim if i == 0 else config.w_dim, config.w_dim,
-                              lr_mul=config.mapping_lr_mul, activate=True) for i in range(config.mapping_layers)]
-        self.mapping_net = nn.Sequential(*layers)
-        self.synthesis = Synthesis(config, spec.dim)
+        self.generator = Generator(config, spec.dim)
         self.encoder = Encoder(config, spec.dim)
         self.masked_encoder = Encoder(config, spec.dim, masked=True)
-        wd = config.w_dim
+        wd, flat = config.w_dim, config.num_ws * config.w_dim
+        k = min(config.sample_components, flat)
         self.register_buffer("w_mean", torch.zeros(wd))
         self.register_buffer("w_components", torch.eye(wd))
         self.register_buffer("w_scales", torch.ones(wd))
+        self.register_buffer("wplus_mean", torch.zeros(config.num_ws, wd))
+        self.register_buffer("wplus_components", torch.eye(flat)[:k])
+        self.register_buffer("wplus_scales", torch.ones(k))
 
     # ---- protocol ----------------------------------------------------------------------
     @property
@@ -255,18 +162,9 @@ class LatentPrior(nn.Module):
     def num_ws(self) -> int:
         return self.config.num_ws
 
-    @property
-    def mean_w(self) -> Tensor:
-        return self.w_mean
-
-    def mapping(self, z: Tensor) -> Tensor:
-        """w (B, w_dim) of latent noise z (B, z_dim); z is normalised to unit RMS first."""
-        z = z * torch.rsqrt(z.pow(2).mean(-1, keepdim=True) + 1e-8)
-        return self.mapping_net(z)
-
     def synthesize(self, wplus: Tensor) -> Tensor:
         """Normalised features (B, window, D) with contact *logits* in the contact dimensions."""
-        return self.synthesis(self._check_wplus(wplus)).transpose(1, 2)
+        return self.generator(self._check_wplus(wplus))
 
     def generate(self, wplus: Tensor) -> Tensor:
         """Normalised features (B, window, D) of W+ codes (B, num_ws, w_dim); contact
@@ -275,44 +173,42 @@ class LatentPrior(nn.Module):
 
     def encode(self, x: Tensor) -> Tensor:
         """W+ codes (B, num_ws, w_dim) of normalised windows (B, window, D)."""
-        return self.w_mean + self.encoder(self._check_window(x))
+        return self.encoder(self._check_window(x))
 
     def encode_masked(self, x: Tensor, mask: Tensor) -> Tensor:
         """W+ codes of windows of which only frames with ``mask (B, window)`` true are seen;
         the other frames do not influence the result."""
-        return self.w_mean + self.masked_encoder(self._check_window(x), mask)
+        return self.masked_encoder(self._check_window(x), mask)
+
+    def sample_wplus(self, n: int, generator: torch.Generator | None = None, truncation: float = 1.0) -> Tensor:
+        """n W+ codes drawn from the Gaussian of the training windows' codes, pulled toward
+        its mean by ``truncation`` < 1."""
+        z = torch.randn(n, len(self.wplus_scales), generator=generator, dtype=self.wplus_mean.dtype)
+        offset = (truncation * z * self.wplus_scales) @ self.wplus_components
+        return self.wplus_mean + offset.reshape(n, self.num_ws, self.config.w_dim)
+
+    def whiten(self, w: Tensor) -> Tensor:
+        """Coordinates of codes (..., w_dim) along the principal directions of single
+        codes, in standard deviations."""
+        return ((w - self.w_mean) @ self.w_components.t()) / self.w_scales
 
     # ---- helpers -----------------------------------------------------------------------
     def contacts_to_probabilities(self, raw: Tensor) -> Tensor:
         c = self.spec.slices()["contacts"]
         return torch.cat((raw[..., :c.start], torch.sigmoid(raw[..., c])), dim=-1)
 
-    def broadcast(self, w: Tensor) -> Tensor:
-        """W+ code (B, num_ws, w_dim) that repeats one w (B, w_dim) for every layer."""
-        return w[:, None, :].expand(-1, self.num_ws, -1)
-
-    def sample_w(self, n: int, generator: torch.Generator | None = None, truncation: float = 1.0) -> Tensor:
-        """n codes w from the mapping network, pulled toward the mean by ``truncation`` < 1."""
-        p = next(self.parameters())
-        z = torch.randn(n, self.config.z_dim, generator=generator, dtype=p.dtype)
-        w = self.mapping(z)
-        return self.w_mean + truncation * (w - self.w_mean)
-
     @torch.no_grad()
-    def fit_w_statistics(self, n: int = 8192, generator: torch.Generator | None = None) -> None:
-        """Set ``w_mean``, ``w_components`` and ``w_scales`` from ``n`` mapped samples."""
-        w = self.sample_w(n, generator).double()
-        mean = w.mean(0)
-        cov = torch.cov((w - mean).t())
-        evals, evecs = torch.linalg.eigh(cov)
-        order = torch.argsort(evals, descending=True)
-        self.w_mean.copy_(mean)
-        self.w_components.copy_(evecs[:, order].t())
-        self.w_scales.copy_(evals[order].clamp_min(1e-12).sqrt())
-
-    def whiten(self, w: Tensor) -> Tensor:
-        """Coordinates of w (..., w_dim) along the principal directions, in standard deviations."""
-        return ((w - self.w_mean) @ self.w_components.t()) / self.w_scales
+    def fit_code_statistics(self, codes: Tensor) -> None:
+        """Fill the buffers from W+ codes (N, num_ws, w_dim) of training windows."""
+        single = _principal(codes.reshape(-1, codes.shape[-1]).double())
+        whole = _principal(codes.flatten(1).double())
+        k = len(self.wplus_scales)
+        self.w_mean.copy_(single[0])
+        self.w_components.copy_(single[1])
+        self.w_scales.copy_(single[2])
+        self.wplus_mean.copy_(whole[0].reshape(self.wplus_mean.shape))
+        self.wplus_components.copy_(whole[1][:k])
+        self.wplus_scales.copy_(whole[2][:k])
 
     def _check_window(self, x: Tensor) -> Tensor:
         if x.dim() != 3 or x.shape[1] != self.window or x.shape[2] != self.spec.dim:
@@ -323,3 +219,13 @@ class LatentPrior(nn.Module):
         if wplus.dim() != 3 or wplus.shape[1:] != (self.num_ws, self.config.w_dim):
             raise ValueError(f"expected W+ codes (B, {self.num_ws}, {self.config.w_dim}), got {tuple(wplus.shape)}")
         return wplus
+
+
+def _principal(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Mean, principal directions (rows, largest first) and their standard deviations of
+    samples ``x (N, d)``; with fewer samples than dimensions the trailing ones have a
+    tiny scale."""
+    mean = x.mean(0)
+    evals, evecs = torch.linalg.eigh(torch.cov((x - mean).t()))
+    order = torch.argsort(evals, descending=True)
+    return mean, evecs[:, order].t(), evals[order].clamp_min(1e-12).sqrt()

@@ -1,8 +1,8 @@
 """Motion that motionopt makes itself: clips sampled from a shipped latent prior.
 
 The demo and the tests need real-looking motion on a prior's skeleton without any data
-file. A latent (W+) prior's generator needs no context: a code w from the mapping
-network gives one window of motion (about 2 s at 30 fps). Sampling several codes and
+file. A latent (W+) prior's generator needs no context: a W+ code drawn from the
+Gaussian of its training codes gives one window of motion (about 2 s at 30 fps). Sampling several codes and
 keeping the one whose root speed is nearest a wanted speed picks, say, a walk rather
 than a figure standing still, and the seed makes every clip repeatable.
 """
@@ -17,7 +17,7 @@ from motionopt.motion import Motion
 
 from .latent import LatentPrior
 
-#: Truncation toward the mean code: samples stay in the well-trained part of W.
+#: Truncation toward the mean code: samples stay in the well-trained part of the code space.
 TRUNCATION = 0.7
 
 
@@ -47,7 +47,7 @@ def sample_motion(prior: LatentPrior, seed: int = 0, speed: float | None = None,
         raise ValueError(f"candidates must be at least 1, got {candidates}")
     gen = torch.Generator().manual_seed(seed)
     n = candidates if speed is not None else 1
-    x = prior.generate(prior.broadcast(prior.sample_w(n, gen, truncation=truncation)))
+    x = prior.generate(prior.sample_wplus(n, gen, truncation=truncation))
     codec = Codec.of(prior)
     clips = [on_the_floor(codec.motion(w), prior.spec.contact_indices(), unit) for w in x]
     if speed is None:

@@ -1,22 +1,19 @@
-"""Semantic directions in the latent prior's W space (MoDi section 4.1, appendix C.2).
+"""Semantic directions in the latent prior's code space (MoDi section 4.1, appendix C.2).
 
-A direction is the unit normal of a linear classifier in W:
-- for computed attributes (``motionopt.attributes``): sample w from the mapping network,
-  generate, score each motion, label it by whether its score is above the median, fit
-  a logistic regression on w;
-- for style labels (Bandai file names) the same, with a style's score the probability
-  that ``priors.style.StyleClassifier`` (fitted on windows of the labelled training clips)
-  gives it. (Fitting on encoder codes of the labelled clips instead gave directions whose
-  edits the style could not be read back from: the encoder maps far from W's samples.)
+A direction is the unit normal of a linear classifier on codes: windows of real motion
+(the training data) are encoded and scored, labelled by whether the score is above the
+median, and a logistic regression is fitted on each window's mean code. For computed
+attributes (``motionopt.attributes``) the score is the attribute; for style labels
+(Bandai file names) it is the probability that ``priors.style.StyleClassifier``
+(fitted on windows of the labelled training clips) gives the style.
 
-An edit adds ``strength * scale * direction`` to the direction's layers of a W+ code,
-where ``scale`` is the standard deviation of sampled w along the direction: strength is
-in standard deviations of W. The layers of a computed attribute are the run of layers
-whose edit moves the other attributes least for how far it moves its own, chosen on
-sampled motions apart from those the direction was fitted on (as StyleGAN edits are
-restricted to the layers that carry a property): the Bandai prior's root speed is edited
-on layers 1-2, because editing layer 0 too moves the arm lift with it. Styles, which
-are about the whole motion, edit every layer.
+An edit adds ``strength * scale * direction`` to every code of a W+ code (each code
+covers a few frames of the window, so the whole window changes alike). ``scale`` is
+calibrated in user terms: strength 1 moves the score by one standard deviation of the
+score over the training windows (``calibrate``; e.g. the crouch depth by the spread of
+crouch depths in the data), as far as the generator follows: the step is at most
+``MAX_SCALE`` standard deviations of the windows' mean codes along the direction, so
+that edits stay where the generator was trained.
 """
 from __future__ import annotations
 
@@ -36,25 +33,17 @@ from .style import StyleClassifier
 
 @dataclass
 class Direction:
-    """A unit direction in W, its scale (std of W along it) and the classifier's accuracy
-    on held-out samples."""
+    """A unit direction in code space (w_dim), its scale (std of the sampled mean codes
+    along it) and the classifier's accuracy on held-out samples."""
 
     name: str
     direction: list[float]
     scale: float
     accuracy: float
     source: str
-    #: W+ layers an edit moves; None for every layer.
-    layers: list[int] | None = None
 
     def vector(self) -> Tensor:
         return torch.tensor(self.direction, dtype=torch.float32)
-
-    def offset(self, num_ws: int) -> Tensor:
-        """Unit edit of a W+ code (num_ws, w_dim): the direction on its layers, zero elsewhere."""
-        mask = torch.zeros(num_ws, 1)
-        mask[list(range(num_ws)) if self.layers is None else self.layers] = 1.0
-        return mask * self.vector()
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -102,69 +91,77 @@ def _fit(name: str, w: np.ndarray, labels: np.ndarray, source: str, w_all: np.nd
 
 
 @torch.no_grad()
-def fit_attribute_directions(prior: LatentPrior, n: int = 2000, seed: int = 0,
+def fit_attribute_directions(prior: LatentPrior, windows: Tensor | None = None, n: int = 2000, seed: int = 0,
                              styles: StyleClassifier | None = None) -> dict[str, Direction]:
     """Directions of the computed attributes, and of the styles of ``styles`` (scored by
-    the classifier's probability), from ``n`` sampled motions."""
-    g = torch.Generator().manual_seed(seed)
-    w = prior.sample_w(n, g)
+    the classifier's probability), fitted on the codes of ``windows`` (normalised windows
+    of real motion, the training data; default: ``n`` motions sampled from the prior) and
+    calibrated to the spread of each score over them."""
+    if windows is None:
+        windows = prior.generate(prior.sample_wplus(n, torch.Generator().manual_seed(seed)))
     scorer = AttributeScorer(prior)
-    scores: dict[str, list[Tensor]] = {k: [] for k in A.ATTRIBUTES}
-    for i in range(0, n, 256):
-        x = prior.generate(prior.broadcast(w[i:i + 256]))
-        s = scorer(x)
-        if styles is not None:
-            p = styles.probabilities(x)
-            s.update({f"style:{name}": p[:, j] for j, name in enumerate(styles.styles)})
-        for k, v in s.items():
-            scores.setdefault(k, []).append(v)
-    wn = w.double().numpy()
-    out = {}
-    for k, v in scores.items():
-        sc = torch.cat(v).numpy()
+    codes = torch.cat([prior.encode(w) for w in windows.split(256)])
+    parts = [_scores(w, scorer, styles) for w in windows.split(256)]
+    scores = {k: torch.cat([p[k] for p in parts]).numpy() for k in parts[0]}
+    wn = codes.mean(1).double().numpy()
+    probe = codes[torch.linspace(0, len(codes) - 1, min(CALIBRATION_WINDOWS, len(codes))).long()]
+    fitted = {}
+    for k, sc in scores.items():
         what = "probability of the style classifier" if k.startswith("style:") else "score"
-        d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{n} sampled motions, above/below median {what}", wn,
-                 seed)
+        d = _fit(k, wn, (sc > np.median(sc)).astype(int), f"{len(wn)} windows, above/below median {what}", wn, seed)
         if d is not None:
-            out[k] = d
-    probe = prior.broadcast(prior.sample_w(LAYER_PROBE_SAMPLES, torch.Generator().manual_seed(seed + 1)))
-    for k in A.ATTRIBUTES:
-        if k in out:
-            out[k].layers = choose_layers(prior, out[k], probe, scorer)
-    return out
+            fitted[k] = d
+    if PACE in fitted:
+        fitted = {k: d if k == PACE or k.startswith("style:") else without(d, fitted[PACE], wn)
+                  for k, d in fitted.items()}
+    return {k: calibrate(prior, d, probe, scorer, styles, float(scores[k].std())) for k, d in fitted.items()}
 
 
-#: Sampled motions the layers of a direction are chosen on, and the strength they are edited by.
-LAYER_PROBE_SAMPLES = 256
-LAYER_PROBE_STRENGTH = 2.0
-#: A run of layers must move its attribute at least this share of what editing every layer does.
-LAYER_MIN_SHARE = 0.5
+#: The attribute the other computed attributes' directions are made independent of.
+PACE = "root_speed"
+
+
+def without(d: Direction, other: Direction, w: np.ndarray) -> Direction:
+    """``d`` with its component along ``other`` removed (conditional editing, as in
+    InterFaceGAN): moving along it leaves ``other``'s classifier score unchanged, so a
+    crouch does not also change the pace. Its scale is re-measured on the codes ``w``."""
+    a, b = np.asarray(d.direction), np.asarray(other.direction)
+    n = a - (a @ b) * b
+    n /= max(np.linalg.norm(n), 1e-12)
+    return replace(d, direction=n.tolist(), scale=float((w @ n).std()), source=d.source + f", {other.name} projected out")
+
+
+def _scores(x: Tensor, scorer: AttributeScorer, styles: StyleClassifier | None) -> dict[str, Tensor]:
+    """Every attribute's score of windows ``x``, and each style's probability."""
+    s = scorer(x)
+    if styles is not None:
+        p = styles.probabilities(x)
+        s.update({f"style:{name}": p[:, j] for j, name in enumerate(styles.styles)})
+    return s
+
+
+#: Windows the strength scale is calibrated on, and the largest scale allowed (standard
+#: deviations of the windows' mean codes along the direction).
+CALIBRATION_WINDOWS = 256
+MAX_SCALE = 8.0
 
 
 @torch.no_grad()
-def choose_layers(prior: LatentPrior, d: Direction, wplus: Tensor, scorer: AttributeScorer) -> list[int]:
-    """The run of W+ layers a..b whose edit of ``wplus`` by +-``LAYER_PROBE_STRENGTH``
-    moves the other attributes least relative to ``d``'s own (changes of the mean score in
-    standard deviations of the unedited scores), among the runs that move it at least
-    ``LAYER_MIN_SHARE`` as far as editing every layer does."""
-    base = scorer(prior.generate(wplus))
-    std = {k: v.std().clamp_min(1e-12) for k, v in base.items()}
-    L = prior.num_ws
+def calibrate(prior: LatentPrior, d: Direction, codes: Tensor, scorer: AttributeScorer,
+              styles: StyleClassifier | None, score_std: float) -> Direction:
+    """``d`` with its scale set so that strength 1 moves the score by ``score_std``,
+    measured at strength +-1 on the windows of ``codes``; at most ``MAX_SCALE`` times the
+    spread of mean codes along the direction."""
 
-    def moves(layers: list[int]) -> tuple[float, float]:
-        edit = replace(d, layers=layers).offset(L) * d.scale
-        own, ratio = [], 0.0
-        for s in (-LAYER_PROBE_STRENGTH, LAYER_PROBE_STRENGTH):
-            sc = scorer(prior.generate(wplus + s * edit))
-            shift = {k: float((sc[k].mean() - base[k].mean()).abs() / std[k]) for k in sc}
-            own.append(shift[d.name])
-            ratio = max(ratio, max(v for k, v in shift.items() if k != d.name) / max(shift[d.name], 1e-9))
-        return min(own), ratio
+    def score(strength: float) -> float:
+        x = prior.generate(edit_codes(codes, d, strength))
+        if d.name.startswith("style:"):
+            return float(styles.score(x, d.name.split(":", 1)[1]).mean())
+        return float(scorer(x)[d.name].mean())
 
-    runs = {(a, b): moves(list(range(a, b + 1))) for a in range(L) for b in range(a, L)}
-    every = runs[0, L - 1][0]
-    a, b = min((run for run, (own, _) in runs.items() if own >= LAYER_MIN_SHARE * every), key=lambda r: runs[r][1])
-    return list(range(a, b + 1))
+    per_unit = (score(1.0) - score(-1.0)) / 2
+    factor = MAX_SCALE if per_unit <= 0 else min(score_std / per_unit, MAX_SCALE)
+    return replace(d, scale=d.scale * factor)
 
 
 def directions_of(prior: LatentPrior) -> dict[str, Direction]:
@@ -173,5 +170,5 @@ def directions_of(prior: LatentPrior) -> dict[str, Direction]:
 
 
 def edit_codes(wplus: Tensor, d: Direction, strength: float) -> Tensor:
-    """W+ codes moved by ``strength`` standard deviations along a direction, on its layers."""
-    return wplus + strength * d.scale * d.offset(wplus.shape[-2]).to(wplus)
+    """W+ codes with every code moved by ``strength`` standard deviations along a direction."""
+    return wplus + strength * d.scale * d.vector().to(wplus)

@@ -1,24 +1,35 @@
-"""Training of the latent prior in three phases: GAN, encoder, masked encoder.
+"""Training of the latent prior in two phases: autoencoder, then masked encoder.
 
-1. GAN (MoDi section 3.3): non-saturating adversarial loss, lazy R1 on real windows,
-   style mixing, and the two foot-contact losses (touch: -log sigmoid(contact logit);
-   consistency: foot speed squared times contact probability); an exponential moving
-   average of the generator is what gets shipped.
-2. Encoder (section 3.4) with the generator frozen:
-   L = L_rec + 100 L_fcon + 2 L_root + 0.1 L_pos (reconstruction of normalised features,
-   contact cross-entropy, root features, FK positions in centimetres).
-3. Masked encoder: the same losses on full windows, from inputs whose unseen frames are
-   zeroed (random prefixes and random gaps).
+1. Autoencoder: encoder and generator together, on
+   L = L_rec + L_fcon + 2 L_root + 0.01 L_pos + L_foot + code_weight * mean(w^2)
+   (after MoDi's encoder losses, appendix D.4: reconstruction of normalised features,
+   contact cross-entropy, root features, FK joint positions relative to the root in
+   centimetres; MoDi's contact consistency, foot speed squared times contact
+   probability; and a penalty on the codes' size). MoDi weighs contacts 100 and world
+   positions 0.1; here the contact term would then outweigh the rest a hundredfold, and
+   world positions carry the root's drift over the window, which the root term covers. The
+   generator decodes the codes plus Gaussian noise of ``code_noise``, so that nearby
+   codes decode to nearby, natural motion: what sampling, edits, variations and
+   interpolation rely on. After each epoch the code statistics are fitted to the
+   training windows' codes (``LatentPrior.fit_code_statistics``).
+2. Denoising encoder, generator frozen: the same losses (without the code noise), from
+   inputs with Gaussian noise in the unnormalised features (``noisy``: rotations and
+   root), of a random size up to ``rotation_noise`` and ``root_noise`` per window. Trained
+   on clean windows only, the encoder met captured noise far outside its training data
+   (a few joints barely rotate, so their normalised features are tiny-spread) and
+   decoded 1 cm of joint noise into 7 cm of error. The code statistics stay those of
+   the autoencoder phase: they describe the codes the generator was trained on.
+3. Masked encoder, generator frozen: the same losses on full windows, from inputs whose
+   unseen frames are zeroed (random prefixes and random gaps).
 
 An "epoch" is ``epoch_steps`` optimiser steps; a phase ends after its epochs or its
-minutes (``gan_minutes``...), and one call stops after ``max_minutes`` (resumable).
-After each epoch, the usable checkpoint ``out`` and the resumable ``out.train-state.pt``
-are written and one JSON line with validation figures goes to ``out.log``. A later call
-with the same ``out`` resumes.
+minutes (``autoencoder_minutes``...), and one call stops after ``max_minutes``
+(resumable). After each epoch, the usable checkpoint ``out`` and the resumable
+``out.train-state.pt`` are written and one JSON line with validation figures goes to
+``out.log``. A later call with the same ``out`` resumes.
 """
 from __future__ import annotations
 
-import copy
 import json
 import logging
 import time
@@ -32,44 +43,42 @@ from tqdm import tqdm
 
 from motionopt.dataset import MotionDataset
 from motionopt.codec import Codec
-from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm, \
-    window_descriptors
+from motionopt.metrics_latent import local_position_error_mm, root_position_error_mm
 
 from .checkpoint import atomic_torch_save, load_plain, save_prior
-from .latent import Discriminator, LatentConfig, LatentPrior
+from .latent import LatentConfig, LatentPrior
 from .semantic import fit_attribute_directions
 from .style import fit_style_classifier
 from .train import epoch_bar, log_path, provenance, start_run, state_path
 
 log = logging.getLogger(__name__)
 
-PHASES = ("gan", "encoder", "masked")
+PHASES = ("autoencoder", "denoising", "masked")
 
 
 @dataclass
 class LatentTrainConfig:
-    """Optimisation settings; the loss weights are the paper's (MoDi appendix D.2, D.4)."""
+    """Optimisation settings (see the module docstring for the loss)."""
 
-    gan_epochs: int = 60
-    encoder_epochs: int = 20
+    autoencoder_epochs: int = 60
+    denoising_epochs: int = 20
     masked_epochs: int = 20
     epoch_steps: int = 200
-    batch_size: int = 16
+    batch_size: int = 32
     stride: int = 4
-    lr: float = 0.002
+    lr: float = 0.001
     encoder_lr: float = 0.0005
-    r1_gamma: float = 5.0
-    r1_interval: int = 16
-    mixing_prob: float = 0.9
-    ema_beta: float = 0.998
-    touch_weight: float = 0.01
+    code_noise: float = 0.1
+    rotation_noise: float = 0.08
+    root_noise: float = 0.015
+    code_weight: float = 0.001
     foot_contact_weight: float = 1.0
     rec_weight: float = 1.0
-    enc_contact_weight: float = 100.0
+    contact_weight: float = 1.0
     root_weight: float = 2.0
-    pos_weight: float = 0.1
-    gan_minutes: float | None = None
-    encoder_minutes: float | None = None
+    pos_weight: float = 0.01
+    autoencoder_minutes: float | None = None
+    denoising_minutes: float | None = None
     masked_minutes: float | None = None
     max_minutes: float | None = None
     seed: int = 0
@@ -100,6 +109,11 @@ class Geometry:
         return (pos[:, 1:, self.contact_idx] - pos[:, :-1, self.contact_idx]).pow(2).sum(-1) * self.prior.spec.fps ** 2
 
 
+def local(pos: Tensor) -> Tensor:
+    """Joint positions (..., J, 3) relative to the root joint's."""
+    return pos - pos[..., :1, :]
+
+
 def random_masks(n: int, window: int, generator: torch.Generator) -> Tensor:
     """Masks (n, window) of seen frames: half random prefixes (1..window-8 frames seen),
     half random gaps (4..window-8 unseen frames, at least 2 seen on each side)."""
@@ -118,161 +132,118 @@ def random_masks(n: int, window: int, generator: torch.Generator) -> Tensor:
 
 
 class LatentTrainer:
-    """Holds the models, optimisers and state of one training run."""
+    """Holds the model, optimisers and state of one training run."""
 
     def __init__(self, dataset: MotionDataset, config: LatentTrainConfig, metadata: dict):
         self.config = config
         self.gen = torch.Generator().manual_seed(config.seed)
+        torch.manual_seed(config.seed)
         cfg = config.model
         self.train_w = dataset.windows("train", cfg.window, config.stride)
         self.val_w = dataset.windows("val", cfg.window, cfg.window // 4) if dataset.val else None
         self.prior = LatentPrior(dataset.spec, dataset.normalizer, dataset.skeleton, cfg, metadata)
-        self.student = copy.deepcopy(self.prior)  # trained generator; self.prior holds its moving average
-        self.disc = Discriminator(cfg, dataset.spec.dim)
         self.geo = Geometry(self.prior)
-        self.geo_student = Geometry(self.student)
-        g_params = list(self.student.mapping_net.parameters()) + list(self.student.synthesis.parameters())
-        self.opt_g = torch.optim.Adam(g_params, lr=config.lr, betas=(0.0, 0.99))
-        r1_ratio = config.r1_interval / (config.r1_interval + 1)
-        self.opt_d = torch.optim.Adam(self.disc.parameters(), lr=config.lr * r1_ratio,
-                                      betas=(0.0, 0.99 ** r1_ratio))
-        self.opt_e = torch.optim.Adam(self.prior.encoder.parameters(), lr=config.encoder_lr)
-        self.opt_m = torch.optim.Adam(self.prior.masked_encoder.parameters(), lr=config.encoder_lr)
+        p = self.prior
+        self.opt_a = torch.optim.Adam(list(p.encoder.parameters()) + list(p.generator.parameters()), lr=config.lr)
+        self.opt_m = torch.optim.Adam(p.masked_encoder.parameters(), lr=config.encoder_lr)
         self.phase, self.epoch, self.step, self.history, self.seconds = PHASES[0], 0, 0, [], 0.0
-        self._freeze_generator(self.prior)
-
-    @staticmethod
-    def _freeze_generator(prior: LatentPrior) -> None:
-        for p in list(prior.mapping_net.parameters()) + list(prior.synthesis.parameters()):
-            p.requires_grad_(False)
 
     # ---- state -------------------------------------------------------------------------
     def state(self) -> dict:
-        return {"prior": self.prior.state_dict(), "student": self.student.state_dict(), "disc": self.disc.state_dict(),
-                "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict(), "opt_e": self.opt_e.state_dict(),
-                "opt_m": self.opt_m.state_dict(), "generator": self.gen.get_state(),
-                "torch_rng": torch.get_rng_state(), "phase": self.phase, "epoch": self.epoch, "step": self.step,
-                "history": self.history, "seconds": self.seconds}
+        return {"prior": self.prior.state_dict(), "opt_a": self.opt_a.state_dict(), "opt_m": self.opt_m.state_dict(),
+                "generator": self.gen.get_state(), "torch_rng": torch.get_rng_state(), "phase": self.phase,
+                "epoch": self.epoch, "step": self.step, "history": self.history, "seconds": self.seconds}
 
     def load_state(self, s: dict) -> None:
         self.prior.load_state_dict(s["prior"])
-        self.student.load_state_dict(s["student"])
-        self.disc.load_state_dict(s["disc"])
-        for k in ("opt_g", "opt_d", "opt_e", "opt_m"):
+        for k in ("opt_a", "opt_m"):
             getattr(self, k).load_state_dict(s[k])
         self.gen.set_state(s["generator"])
         torch.set_rng_state(s["torch_rng"])
         self.phase, self.epoch, self.step, self.history, self.seconds = (
             s["phase"], s["epoch"], s["step"], s["history"], s["seconds"])
 
-    # ---- GAN ---------------------------------------------------------------------------
     def _batch(self) -> Tensor:
         idx = torch.randint(0, len(self.train_w), (self.config.batch_size,), generator=self.gen)
         return self.train_w[idx]
 
-    def _styles(self, n: int) -> Tensor:
-        """W+ codes of fresh samples, with style mixing (two w, one crossover layer)."""
-        m = self.student
-        w = m.mapping(torch.randn(2 * n, m.config.z_dim, generator=self.gen)).reshape(2, n, -1)
-        ws = m.broadcast(w[0]).clone()
-        if torch.rand((), generator=self.gen) < self.config.mixing_prob:
-            cut = int(torch.randint(1, m.num_ws, (1,), generator=self.gen))
-            ws[:, cut:] = w[1][:, None]
-        return ws
-
-    def _fake(self, raw: Tensor) -> Tensor:
-        """What the discriminator sees of generated windows: contacts as probabilities."""
-        return self.student.contacts_to_probabilities(raw)
-
-    def gan_step(self) -> dict[str, float]:
-        c = self.config
-        real = self._batch()
-        # discriminator
-        with torch.no_grad():
-            fake = self._fake(self.student.synthesize(self._styles(len(real))))
-        loss_d = Fn.softplus(self.disc(fake)).mean() + Fn.softplus(-self.disc(real)).mean()
-        self.opt_d.zero_grad(set_to_none=True)
-        loss_d.backward()
-        r1 = torch.zeros(())
-        if self.step % c.r1_interval == 0:
-            real_r = real.detach().requires_grad_(True)
-            (grad,) = torch.autograd.grad(self.disc(real_r).sum(), real_r, create_graph=True)
-            r1 = grad.pow(2).sum(dim=(1, 2)).mean()
-            (c.r1_gamma / 2 * r1 * c.r1_interval).backward()
-        self.opt_d.step()
-        # generator
-        raw = self.student.synthesize(self._styles(len(real)))
-        logits = raw[..., self.student.spec.slices()["contacts"]]
-        adv = Fn.softplus(-self.disc(self._fake(raw))).mean()
-        touch = Fn.softplus(-logits).mean()
-        speed = self.geo_student.foot_speed_sq(self.geo_student.positions(raw))
-        foot = (speed * torch.sigmoid(logits[:, 1:])).mean()
-        loss_g = adv + c.touch_weight * touch + c.foot_contact_weight * foot
-        self.opt_g.zero_grad(set_to_none=True)
-        loss_g.backward()
-        self.opt_g.step()
-        self._ema()
-        return {k: float(v.detach()) for k, v in (("d", loss_d), ("g_adv", adv), ("touch", touch), ("foot", foot), ("r1", r1))}
-
-    @torch.no_grad()
-    def _ema(self) -> None:
-        beta = self.config.ema_beta if self.step > 100 else 0.0
-        for name in ("mapping_net", "synthesis"):
-            for pe, ps in zip(getattr(self.prior, name).parameters(), getattr(self.student, name).parameters()):
-                pe.lerp_(ps, 1.0 - beta)
-
-    # ---- encoders ----------------------------------------------------------------------
-    def encoder_losses(self, real: Tensor, mask: Tensor | None) -> tuple[Tensor, dict[str, float]]:
-        """The paper's encoder loss of a batch, through the frozen (averaged) generator."""
+    # ---- losses ------------------------------------------------------------------------
+    def losses(self, real: Tensor, mask: Tensor | None) -> tuple[Tensor, dict[str, float]]:
+        """The loss of a batch: through the noisy codes of the encoder (autoencoder phase)
+        or the masked encoder's codes (masked phase)."""
         c, p = self.config, self.prior
-        wplus = p.encode(real) if mask is None else p.encode_masked(real, mask)
-        raw = p.synthesize(wplus)
+        if mask is not None:
+            codes = p.encode_masked(real, mask)
+            raw = p.synthesize(codes)
+        elif self.phase == "denoising":
+            codes = p.encode(self.noisy(real))
+            raw = p.synthesize(codes)
+        else:
+            codes = p.encode(real)
+            raw = p.synthesize(codes + c.code_noise * torch.randn(codes.shape, generator=self.gen))
         s = p.spec.slices()
         pose = slice(0, p.spec.pose_dim)
         rec = Fn.mse_loss(raw[..., pose], real[..., pose])
         contact = Fn.binary_cross_entropy_with_logits(raw[..., s["contacts"]], real[..., s["contacts"]])
         root = Fn.mse_loss(raw[..., :s["root_tilt"].stop], real[..., :s["root_tilt"].stop])
-        pos = (self.geo.positions(raw) - self.geo.positions(real)).mul(100).pow(2).sum(-1).mean()
-        loss = c.rec_weight * rec + c.enc_contact_weight * contact + c.root_weight * root + c.pos_weight * pos
-        return loss, {k: float(v.detach()) for k, v in (("rec", rec), ("contact", contact), ("root", root), ("pos_cm2", pos))}
+        pos_fake, pos_real = self.geo.positions(raw), self.geo.positions(real)
+        pos = (local(pos_fake) - local(pos_real)).mul(100).pow(2).sum(-1).mean()
+        foot = (self.geo.foot_speed_sq(pos_fake) * torch.sigmoid(raw[:, 1:, s["contacts"]])).mean()
+        size = codes.pow(2).mean()
+        loss = (c.rec_weight * rec + c.contact_weight * contact + c.root_weight * root + c.pos_weight * pos
+                + c.foot_contact_weight * foot + c.code_weight * size)
+        parts = (("rec", rec), ("contact", contact), ("root", root), ("pos_cm2", pos), ("foot", foot), ("code_ms", size))
+        return loss, {k: float(v.detach()) for k, v in parts}
 
-    def encoder_step(self, masked: bool) -> dict[str, float]:
+    def noisy(self, x: Tensor) -> Tensor:
+        """Normalised windows with Gaussian noise added to their unnormalised rotations
+        (std up to ``rotation_noise``) and root position and steps (up to ``root_noise``
+        metres), of a size drawn per window."""
+        c, p = self.config, self.prior
+        raw = p.normalizer.denormalize(x)
+        s = p.spec.slices()
+        size = torch.rand(len(x), 1, 1, generator=self.gen)
+        std = torch.zeros(x.shape[-1])
+        for k in ("yaw_delta", "root_tilt", "joint_rotations"):
+            std[s[k]] = c.rotation_noise
+        for k in ("root_delta", "root_height"):
+            std[s[k]] = c.root_noise
+        noise = torch.randn(raw.shape, generator=self.gen, dtype=raw.dtype) * size * std
+        return p.normalizer.normalize(raw + noise).to(x.dtype)
+
+    def train_step(self) -> dict[str, float]:
+        masked = self.phase == "masked"
+        for q in self.prior.generator.parameters():
+            q.requires_grad_(self.phase == "autoencoder")
         real = self._batch()
         mask = random_masks(len(real), real.shape[1], self.gen) if masked else None
-        loss, parts = self.encoder_losses(real, mask)
-        opt = self.opt_m if masked else self.opt_e
+        loss, parts = self.losses(real, mask)
+        opt = self.opt_m if masked else self.opt_a
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         return parts
 
+    @torch.no_grad()
+    def fit_code_statistics(self) -> None:
+        """The prior's code statistics from the codes of every training window."""
+        self.prior.fit_code_statistics(torch.cat([self.prior.encode(w) for w in self.train_w.split(512)]))
+
     # ---- validation --------------------------------------------------------------------
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Figures on held-out windows: Fréchet distance of samples (GAN phase) or
-        reconstruction errors in mm (encoder phases)."""
+        """Reconstruction errors (mm) of held-out windows through the phase's encoder."""
         p = self.prior
         p.eval()
-        out: dict[str, float] = {}
         if self.val_w is None:
-            return out
-        if self.phase == "gan":
-            g = torch.Generator().manual_seed(1234)
-            fake = p.generate(p.broadcast(p.sample_w(len(self.val_w), g)))
-            out["val_fd"] = frechet_distance(window_descriptors(fake), window_descriptors(self.val_w))
-            out["sample_foot_speed_in_contact"] = float(
-                (self.geo.foot_speed_sq(self.geo.positions(fake)).sqrt() *
-                 fake[:, 1:, p.spec.slices()["contacts"]]).mean())
+            return {}
+        real = self.val_w[:256]
+        if self.phase == "masked":
+            wplus = p.encode_masked(real, random_masks(len(real), real.shape[1], torch.Generator().manual_seed(7)))
         else:
-            real = self.val_w[:256]
-            if self.phase == "encoder":
-                wplus = p.encode(real)
-            else:
-                wplus = p.encode_masked(real, random_masks(len(real), real.shape[1], torch.Generator().manual_seed(7)))
-            pr, pg = self.geo.positions(real), self.geo.positions(p.generate(wplus))
-            out["val_root_mm"] = root_position_error_mm(pg, pr)
-            out["val_local_mm"] = local_position_error_mm(pg, pr)
-        return out
+            wplus = p.encode(real)
+        pr, pg = self.geo.positions(real), self.geo.positions(p.generate(wplus))
+        return {"val_root_mm": root_position_error_mm(pg, pr), "val_local_mm": local_position_error_mm(pg, pr)}
 
     # ---- loop --------------------------------------------------------------------------
     def _phase_minutes(self) -> float:
@@ -312,13 +283,13 @@ class LatentTrainer:
         sums: dict[str, float] = {}
         bar = epoch_bar(c.epoch_steps, f"{self.phase} {self.epoch + 1}/{c.epochs(self.phase)}", progress)
         for _ in bar:
-            parts = self.gan_step() if self.phase == "gan" else self.encoder_step(self.phase == "masked")
+            parts = self.train_step()
             self.step += 1
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v / c.epoch_steps
             bar.set_postfix({k: f"{v:.3g}" for k, v in parts.items()})
-        if self.phase == "gan":
-            self.prior.fit_w_statistics(generator=torch.Generator().manual_seed(c.seed))
+        if self.phase == "autoencoder":
+            self.fit_code_statistics()
         self.epoch += 1
         epoch_minutes = (time.perf_counter() - t0) / 60
         self.seconds += epoch_minutes * 60
@@ -360,17 +331,29 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
     return prior.eval()
 
 
+#: Training windows the semantic directions are fitted and calibrated on: at most this
+#: many, evenly spaced among those that start every ``DIRECTION_STRIDE`` frames.
+DIRECTION_WINDOWS = 4000
+DIRECTION_STRIDE = 4
+#: With fewer training windows, the directions are fitted on motions sampled from the prior.
+MIN_DIRECTION_WINDOWS = 200
+
+
 def add_directions(prior: LatentPrior, dataset: MotionDataset, seed: int = 0) -> None:
     """Fit the semantic directions into ``prior.metadata['attribute_directions']``: those
     of the computed attributes, and, when the training clip names carry style labels, a
     style classifier (stored as ``style_classifier``, scored on the held-out clips) and a
-    direction per style."""
+    direction per style, fitted on ``DIRECTION_WINDOWS`` training windows (evenly spaced;
+    on sampled motions when the data has fewer than ``MIN_DIRECTION_WINDOWS``)."""
     prior.eval()
     norm = {split: {k: prior.normalizer.normalize(v).float() for k, v in clips.items()}
             for split, clips in (("train", dataset.train), ("val", dataset.val))}
     styles = fit_style_classifier(norm["train"], norm["val"], prior.window)
     if styles is not None:
         prior.metadata["style_classifier"] = styles.to_dict()
-    dirs = fit_attribute_directions(prior, seed=seed, styles=styles)
+    windows = dataset.windows("train", prior.window, DIRECTION_STRIDE)
+    windows = windows[torch.linspace(0, len(windows) - 1, min(DIRECTION_WINDOWS, len(windows))).long()]
+    dirs = fit_attribute_directions(prior, windows if len(windows) >= MIN_DIRECTION_WINDOWS else None, seed=seed,
+                                    styles=styles)
     prior.metadata["attribute_directions"] = {k: d.to_dict() for k, d in dirs.items()}
 

@@ -24,7 +24,7 @@ from motionopt.motion import Motion
 from motionopt.smoothing import local_linear
 from priors.checkpoint import load_prior_of_kind
 from priors.latent import LatentPrior
-from priors.semantic import Direction, directions_of, edit_codes, fit_attribute_directions
+from priors.semantic import PACE, Direction, directions_of, edit_codes, fit_attribute_directions
 
 from .common import Prepared, prepare
 from .inbetween import check_ranges
@@ -79,10 +79,11 @@ class LatentTaskResult:
 
 def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
             metrics: dict | None = None, n_frames: int | None = None,
-            anchor: tuple[Motion, np.ndarray] | None = None) -> LatentTaskResult:
+            anchor: tuple | None = None) -> LatentTaskResult:
     """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
     original's rate (default: as many as the features last). ``anchor`` (the input at the
-    model rate, its known frames): take the root's slow motion from it (``anchor_root``).
+    model rate, its known frames, and optionally ``anchor_root``'s cutoff and height):
+    take the root's slow motion from it (``anchor_root``).
     The model motion is held one frame longer so that resampling covers the last file frame."""
     model = Codec.of(prior).motion(x.double(), start, like=original)
     if anchor is not None:
@@ -97,7 +98,8 @@ def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, i
 ROOT_ANCHOR_HZ = 0.5
 
 
-def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: float = ROOT_ANCHOR_HZ) -> Motion:
+def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: float = ROOT_ANCHOR_HZ,
+                height: bool = True) -> Motion:
     """``motion`` with the slow part of its root's departure from ``reference`` removed.
 
     The generator predicts root velocities window by window, so its root path drifts:
@@ -106,7 +108,8 @@ def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: 
     the slow root motion: the differences in heading and position on seen frames, held
     across unseen ones, are smoothed below ``cutoff_hz`` (``local_linear``) and
     added, so the generated motion keeps its own fast root motion (steps, sway) and
-    follows the input's path.
+    follows the input's path. Without ``height`` the root's height is left as generated
+    (an edit that lowers the hips keeps them low).
     """
     seen = np.asarray(seen, bool)
     if len(seen) != motion.num_frames or len(reference.root) != motion.num_frames or not seen.any():
@@ -123,7 +126,9 @@ def anchor_root(motion: Motion, reference: Motion, seen: np.ndarray, cutoff_hz: 
     turn = slow(np.unwrap(turn))[:, 0]
     rotations = motion.rotations.copy()
     rotations[:, 0] = R.quat_multiply(R.yaw_quat(torch.from_numpy(turn)), root_q).numpy()
-    root = motion.root + slow(reference.root - motion.root)
+    axes = [0, 1, 2] if height else [0, 2]
+    root = motion.root.copy()
+    root[:, axes] += slow(reference.root[:, axes] - motion.root[:, axes])
     return motion.with_frames(rotations, root, motion.translations)
 
 
@@ -260,8 +265,10 @@ def _generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_fr
 
 def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: float,
                 options: InversionOptions = InversionOptions()) -> LatentTaskResult:
-    """Move the motion's codes ``strength`` standard deviations along an attribute's
-    direction in W (MoDi 4.1) and generate."""
+    """Move the motion's codes ``strength`` along an attribute's direction in code space
+    (MoDi 4.1) and generate. Every edit but the pace's (``root_speed``) keeps the input's
+    slow root path and heading (``anchor_root``): a crouch or a style changes the body,
+    not where it walks."""
     dirs = directions(prior)
     if attribute not in dirs:
         raise ValueError(f"unknown attribute {attribute!r}; this prior knows: {', '.join(sorted(dirs))}")
@@ -270,35 +277,55 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
     codes = edit_codes(inv.wplus, dirs[attribute], strength)
     x = _generate_clip(prior, codes, inv, len(prep.x))
     inv.timings["total"] = time.perf_counter() - t0
+    keep_path = attribute != PACE
     return _output(prior, x, prep.start, motion, inv, {"attribute": attribute, "strength": strength,
-                                                      "classifier_accuracy": dirs[attribute].accuracy},
-                   n_frames=motion.num_frames)
+                                                      "classifier_accuracy": dirs[attribute].accuracy,
+                                                      "root_path_kept": keep_path},
+                   n_frames=motion.num_frames, anchor=(prep.model, np.ones(len(prep.x), bool), ROOT_ANCHOR_HZ, False) if keep_path else None)
+
+
+def resampled(prior: LatentPrior, x: Tensor, n: int) -> Tensor:
+    """Normalised features ``x (T, D)`` played in ``n`` frames: every channel resampled
+    linearly in time, and the per-frame root steps and turns scaled so that the clip
+    covers the same path and turns as before."""
+    raw = Codec.of(prior).raw(x.double())
+    t = torch.linspace(0, len(x) - 1, n, dtype=raw.dtype)
+    i0 = t.floor().long().clamp(max=max(len(x) - 2, 0))
+    f = (t - i0)[:, None]
+    out = raw[i0] * (1 - f) + raw[(i0 + 1).clamp(max=len(x) - 1)] * f
+    s = prior.spec.slices()
+    pace = (len(x) - 1) / max(n - 1, 1)
+    for k in ("root_delta", "yaw_delta"):
+        out[:, s[k]] *= pace
+    return prior.normalizer.normalize(out).float()
 
 
 def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: InversionOptions = InversionOptions()
                 ) -> list[LatentTaskResult]:
-    """``steps`` motions whose codes go linearly from A's to B's (both cut to the shorter
-    clip); the first is G(I(A)), the last G(I(B)); roots start where A starts."""
+    """``steps`` motions whose codes go linearly from A's to B's; the first is G(I(A)), the
+    last G(I(B)); roots start where A starts. Clips of different lengths: step i lasts
+    the linear blend of the two lengths, and both inputs are played in that time
+    (``resampled``: same path and turns, faster or slower) before their codes are blended."""
     if steps < 2:
         raise ValueError("--steps must be at least 2 (the two ends)")
     pa, pb = prepare(a, prior), prepare(b, prior)
-    n = min(len(pa.x), len(pb.x))
-    inv_a = invert(prior, pa.x[:n], options=options)
-    inv_b = invert(prior, pb.x[:n], options=options)
     out = []
     for i in range(steps):
         alpha = i / (steps - 1)
-        codes = torch.lerp(inv_a.wplus, inv_b.wplus, alpha)
-        x = _generate_clip(prior, codes, inv_a, n)
-        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha}))
+        n = int(round((1 - alpha) * len(pa.x) + alpha * len(pb.x)))
+        inv_a = invert(prior, resampled(prior, pa.x, n), options=options)
+        inv_b = invert(prior, resampled(prior, pb.x, n), options=options)
+        x = _generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
+        frames = int(round((1 - alpha) * a.num_frames + alpha * b.num_frames * a.fps / b.fps))
+        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha, "frames_model": n}, n_frames=frames))
     return out
 
 
 def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int = 0,
          options: InversionOptions = InversionOptions()) -> list[LatentTaskResult]:
     """``count`` variations: the motion's codes plus Gaussian offsets of ``sigma`` standard
-    deviations along every principal direction of W (MoDi's crowds, sigma 0.1-0.8), one
-    offset per variation shared by all windows and layers."""
+    deviations along every principal direction of single codes (MoDi's crowds, sigma
+    0.1-0.8), one offset per variation shared by all windows and codes."""
     if count < 1:
         raise ValueError("--count must be at least 1")
     prep, inv = _invert_input(prior, motion, options)

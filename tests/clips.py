@@ -129,7 +129,7 @@ def slide(motion: Motion, velocity: np.ndarray | list[float]) -> Motion:
 def _write_all() -> Path:
     folder = Path(tempfile.mkdtemp(prefix="motionopt-test-clips-"))
     atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    bvh.save(cmu_like(seed=1, fps=120.0, seconds=2.0)[:240], folder / CMU_120)
+    bvh.save(cmu_like(seed=3, fps=120.0, seconds=2.0)[:240], folder / CMU_120)
     bvh.save(cmu_like(seed=2, fps=60.0, seconds=4.0)[:240], folder / CMU_60)
     bvh.save(bandai_like(seed=3)[:60], folder / BANDAI_30)
     return folder

@@ -90,7 +90,7 @@ def test_camera_sees_a_walk_from_the_side(walk):
 # ---- PNG pictures -------------------------------------------------------------------------
 
 def test_filmstrip(walk, tmp_path):
-    out = P.plot_filmstrip({"input": walk, "output": walk[10:]}, tmp_path / "film.png", frames=4)
+    out = P.plot_filmstrip({"input": walk, "output": walk[10:]}, tmp_path / "film.png", frames=6)
     img = _rgb(out)
     assert img.shape[1] > img.shape[0] > 200  # a strip: wider than tall
     panels = img[: int(0.85 * img.shape[0])]  # without the legend below them

@@ -33,7 +33,7 @@ def test_shipped_style_edit_raises_the_style_probability():
     prior = load_prior(CHECKPOINT_DIR / "bandai-latent.pt")
     clf = style_classifier_of(prior.metadata)
     assert clf is not None
-    w = prior.broadcast(prior.sample_w(64, torch.Generator().manual_seed(11)))
+    w = prior.sample_wplus(64, torch.Generator().manual_seed(11))
     dirs = directions_of(prior)
     for style in ("old", "proud", "sad"):
         low, high = (clf.score(prior.generate(edit_codes(w, dirs[f"style:{style}"], s)), style).mean()

@@ -5,11 +5,11 @@ to W+ codes and back, for clips of any length.
    overlap by ``overlap`` frames; each is encoded (with the masked encoder when some
    frames are unseen) in one batched pass.
 2. Optional particle swarm (``swarm.particle_swarm``) on a low-dimensional subspace:
-   offsets along the first principal components of W, one set per window, shared by
-   all layers of the window.
+   offsets along the first principal components of single codes, one set per window,
+   shared by all codes of the window.
 3. Optional L-BFGS refinement of all W+ codes against task terms plus a regulariser
-   that keeps every code near the mapping network's distribution (squared whitened
-   distance to the mean w, per dimension).
+   that keeps every code near the training codes' distribution (squared whitened
+   distance to the mean code, per dimension).
 
 Generated windows are blended into one sequence with linear cross-fades over the
 overlaps; the blend is differentiable, so task terms see the whole clip.
@@ -95,8 +95,8 @@ def blend(windows: Tensor, starts: list[int], n_frames: int) -> Tensor:
 
 
 def regulariser(prior: LatentMotionPrior, wplus: Tensor) -> Tensor:
-    """Mean squared whitened distance of every code to the mean w (about 1 for samples
-    of the mapping network): keeps refined codes where the generator was trained."""
+    """Mean squared whitened distance of every code to the mean code (about 1 for the
+    training windows' codes): keeps refined codes where the generator was trained."""
     return prior.whiten(wplus).pow(2).mean()
 
 
@@ -178,8 +178,8 @@ def refine(codes: Tensor, energy: Callable[[Tensor], Tensor], iters: int) -> tup
 def pso_subspace(prior: LatentMotionPrior, codes: Tensor, energy: Callable[[Tensor], Tensor],
                  options: InversionOptions) -> Tensor:
     """Particle swarm over offsets along the first ``pso_components`` principal directions
-    of W (in standard deviations, within +-``pso_bound``), one offset per window added to
-    all its layers. The encoder's codes are one particle, so the result is never worse.
+    of single codes (in standard deviations, within +-``pso_bound``), one offset per
+    window added to all its codes. The encoder's codes are one particle, so the result is never worse.
     Needs the prior's principal directions ``w_components`` and scales ``w_scales``."""
     k = options.pso_components
     basis = (prior.w_components[:k] * prior.w_scales[:k, None]).to(codes)  # (k, w_dim)

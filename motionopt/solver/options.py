@@ -76,7 +76,7 @@ class SolverOptions:
 class InversionOptions:
     """How to invert a latent prior. ``refine_iters`` 0 means encoder only; ``pso_iters`` 0
     means no particle swarm (``pso_*``: its size, subspace and bounds, in standard
-    deviations of W). ``position_sigma`` (metres) is the tasks' fidelity term's: how far
+    deviations of single codes). ``position_sigma`` (metres) is the tasks' fidelity term's: how far
     a refined joint may sit from the input (``problems.latent.FidelityTerm``)."""
 
     overlap: int = 16

@@ -19,12 +19,14 @@ def register(sub) -> None:
                        description="Train the latent prior (GAN, then encoder, then masked encoder) on every "
                        "BVH file under --data. Resumes from OUT.train-state.pt when it exists; logs to OUT.log.")
     add_training_data_args(p)
-    p.add_argument("--gan-epochs", type=int, default=60)
-    p.add_argument("--encoder-epochs", type=int, default=20)
+    p.add_argument("--autoencoder-epochs", type=int, default=60)
+    p.add_argument("--denoising-epochs", type=int, default=20)
     p.add_argument("--masked-epochs", type=int, default=20)
     p.add_argument("--epoch-steps", type=int, default=200, help="optimiser steps per epoch (default 200)")
-    p.add_argument("--gan-minutes", type=float, default=None, help="stop the GAN phase after this much time")
-    p.add_argument("--encoder-minutes", type=float, default=None)
+    p.add_argument("--stride", type=int, default=4, help="frames between the starts of training windows (default 4)")
+    p.add_argument("--autoencoder-minutes", type=float, default=None,
+                   help="stop the autoencoder phase after this much time")
+    p.add_argument("--denoising-minutes", type=float, default=None)
     p.add_argument("--masked-minutes", type=float, default=None)
     p.add_argument("--max-minutes", type=float, default=None,
                    help="stop this run after this much time (run the same command again to resume)")
@@ -43,13 +45,13 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_fuse)
 
     p = sub.add_parser("latent-edit", help="strengthen or weaken an attribute by moving in the latent space",
-                       description="Encode the motion into W+, move along the attribute's direction in W "
-                       "(strength in standard deviations of W), generate. Attributes: gral (gradual right-arm "
+                       description="Encode the motion into W+, move along the attribute's direction "
+                       "(strength in standard deviations of the codes), generate. Attributes: gral (gradual right-arm "
                        "lift), root_speed, crouch, and style:NAME for priors trained on Bandai clips; "
                        "`--attribute list` prints those of the prior. --plot draws input over output.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--attribute", required=True, help="attribute name, or 'list'")
-    p.add_argument("--strength", type=float, default=1.0, help="standard deviations of W along the direction")
+    p.add_argument("--strength", type=float, default=1.0, help="standard deviations of the codes along the direction")
     _task_options(p, "BVH file to write (not needed with --attribute list)", out_required=False)
     p.set_defaults(func=cmd_edit)
 
@@ -59,7 +61,7 @@ def register(sub) -> None:
                        "draws each against the input.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--count", type=int, default=8)
-    p.add_argument("--sigma", type=float, default=0.3, help="offset size in standard deviations of W (0.1-0.8)")
+    p.add_argument("--sigma", type=float, default=0.3, help="offset size in standard deviations of the codes (0.1-0.8)")
     _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
     p.set_defaults(func=cmd_vary)
 
@@ -73,8 +75,7 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_interpolate)
 
 
-TINY = {"z_dim": 16, "w_dim": 16, "mapping_layers": 2, "channels": (32, 32, 24, 16, 16),
-        "encoder_channels": (16, 16, 24, 24), "encoder_hidden": 32}
+TINY = {"w_dim": 16, "channels": (16, 32), "sample_components": 64}
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -82,9 +83,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from priors.train_latent import LatentTrainConfig, train_latent
 
     ds = training_dataset(args)
-    cfg = LatentTrainConfig(gan_epochs=args.gan_epochs, encoder_epochs=args.encoder_epochs,
-                            masked_epochs=args.masked_epochs, epoch_steps=args.epoch_steps,
-                            gan_minutes=args.gan_minutes, encoder_minutes=args.encoder_minutes,
+    cfg = LatentTrainConfig(autoencoder_epochs=args.autoencoder_epochs, denoising_epochs=args.denoising_epochs,
+                            masked_epochs=args.masked_epochs, denoising_minutes=args.denoising_minutes,
+                            epoch_steps=args.epoch_steps, stride=args.stride, autoencoder_minutes=args.autoencoder_minutes,
                             masked_minutes=args.masked_minutes, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
                             model=LatentConfig(**TINY) if args.tiny else LatentConfig())
     meta = {"training_command": "motionopt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
@@ -108,7 +109,7 @@ def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, o
                    help="L-BFGS iterations refining the encoder's code toward the input (default 0: encoder only)")
     s.add_argument("--pso", type=int, default=0, metavar="ITERS", help="PSO iterations before refinement")
     s.add_argument("--reg", type=float, default=0.05,
-                   help="weight keeping refined codes near the mapping's distribution")
+                   help="weight keeping refined codes near the training codes' distribution")
 
 
 def _options(args: argparse.Namespace):
