@@ -25,7 +25,8 @@ clips named in its metadata, loaded from the data folder named there:
 4. Tasks on held-out clips, latent inversion against the autoregressive MAP tasks of
    the same name: denoising (accuracy against the clean clip) and in-betweening of a
    1.5 s gap (accuracy on the gap), with seconds per clip.
-5. What a user sees, on the first 10 s of 4 held-out clips (spread over the list), each
+5. What a user sees, on the first 10 s of 4 held-out clips of at least 4 s (spread over
+   the list), each
    figure at the prior's rate on its joints: the round trip (local joint error, root
    path distance, seconds) with the encoder alone and refined; ``denoise --method
    latent`` at 1, 3 and 5 cm of joint noise against the noisy input and the default
@@ -395,6 +396,10 @@ def spread(clips: list[str], n: int) -> list[str]:
     return [clips[int(i * len(clips) / n)] for i in range(min(n, len(clips)))]
 
 
+#: Held-out clips shorter than this are left out of section 5.
+MIN_USER_SECONDS = 4.0
+
+
 def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
                  seconds: float = 10.0) -> list[str]:
     """Section 5 (see the module docstring)."""
@@ -402,6 +407,7 @@ def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iter
     from priors.score import score_motion
 
     ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
+    clips = [c for c in clips if bvh.load(data / c).duration >= MIN_USER_SECONDS]
     motions = [bvh.load(data / name) for name in spread(clips, 4)]
     motions = [m[: int(seconds * m.fps)] for m in motions]
     rows: dict[str, list[list[float]]] = {}
@@ -462,7 +468,7 @@ def edit_figures(prior, motions: list[Motion]) -> list[str]:
                 moves.append(100 * (hi - lo) / max(abs(lo), 1e-9) if key == "speed" else hi - lo)
             else:
                 style = name.split(":", 1)[1]
-                lo, hi = (float(classifier.score(clip_windows([codec.features(ends[s].motion)], prior.window,
+                lo, hi = (float(classifier.score(clip_windows([codec.features(ends[s].model_motion)], prior.window,
                                                               prior.window // 2), style).mean())
                           if classifier is not None else float("nan") for s in (-2.0, 2.0))
                 moves.append(hi - lo)

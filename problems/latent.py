@@ -305,7 +305,9 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
     """``steps`` motions whose codes go linearly from A's to B's; the first is G(I(A)), the
     last G(I(B)); roots start where A starts. Clips of different lengths: step i lasts
     the linear blend of the two lengths, and both inputs are played in that time
-    (``resampled``: same path and turns, faster or slower) before their codes are blended."""
+    (``resampled``: same path and turns, faster or slower) before their codes are blended.
+    Each step's slow root path is that of the inputs' blended features (``anchor_root``):
+    the ends follow their inputs' paths (B's from where A starts)."""
     if steps < 2:
         raise ValueError("--steps must be at least 2 (the two ends)")
     pa, pb = prepare(a, prior), prepare(b, prior)
@@ -313,11 +315,13 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
     for i in range(steps):
         alpha = i / (steps - 1)
         n = int(round((1 - alpha) * len(pa.x) + alpha * len(pb.x)))
-        inv_a = invert(prior, resampled(prior, pa.x, n), options=options)
-        inv_b = invert(prior, resampled(prior, pb.x, n), options=options)
+        xa, xb = resampled(prior, pa.x, n), resampled(prior, pb.x, n)
+        inv_a, inv_b = invert(prior, xa, options=options), invert(prior, xb, options=options)
         x = _generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
         frames = int(round((1 - alpha) * a.num_frames + alpha * b.num_frames * a.fps / b.fps))
-        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha, "frames_model": n}, n_frames=frames))
+        path = Codec.of(prior).motion(torch.lerp(xa, xb, alpha).double(), pa.start, like=a)
+        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha, "frames_model": n}, n_frames=frames,
+                           anchor=(path, np.ones(n, bool))))
     return out
 
 

@@ -35,7 +35,7 @@ def test_shipped_style_edit_raises_the_style_probability():
     assert clf is not None
     w = prior.sample_wplus(64, torch.Generator().manual_seed(11))
     dirs = directions_of(prior)
-    for style in ("old", "proud", "sad"):
+    for style in ("elderly", "exhausted", "sad"):
         low, high = (clf.score(prior.generate(edit_codes(w, dirs[f"style:{style}"], s)), style).mean()
                      for s in (-2.0, 2.0))
         assert high > low + 0.02, style
