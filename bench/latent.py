@@ -303,12 +303,19 @@ def style_rows(prior, classifier: StyleClassifier, dirs: list[Direction], w: Ten
     return lines
 
 
-def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None)) -> float:
-    """Mean world joint position error (mm) on the prior's joints, at the prior's rate."""
+def model_positions(prior, out: Motion, clean: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """World joint positions of two motions on the prior's joints at its rate, cut to the
+    shorter."""
     codec = Codec.of(prior)
     a, b = codec.model_motion(out).positions(), codec.model_motion(clean).positions()
     n = min(len(a), len(b))
-    return float(np.linalg.norm(a[:n][frames] - b[:n][frames], axis=-1).mean() * 1000)
+    return a[:n], b[:n]
+
+
+def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None)) -> float:
+    """Mean world joint position error (mm) on the prior's joints, at the prior's rate."""
+    a, b = model_positions(prior, out, clean)
+    return float(np.linalg.norm(a[frames] - b[frames], axis=-1).mean() * 1000)
 
 
 def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: float = 8.0) -> list[str]:
@@ -373,10 +380,7 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
 def round_trip_errors(prior, out: Motion, clean: Motion) -> tuple[float, float]:
     """Local joint error (mm: root-relative positions, world axes) and mean horizontal
     root path distance (cm) of ``out`` from ``clean``, at the prior's rate on its joints."""
-    codec = Codec.of(prior)
-    a, b = codec.model_motion(out).positions(), codec.model_motion(clean).positions()
-    n = min(len(a), len(b))
-    a, b = torch.from_numpy(a[:n]), torch.from_numpy(b[:n])
+    a, b = (torch.from_numpy(p) for p in model_positions(prior, out, clean))
     return local_position_error_mm(a, b), float((a[:, 0, [0, 2]] - b[:, 0, [0, 2]]).norm(dim=-1).mean() * 100)
 
 

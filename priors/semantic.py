@@ -33,8 +33,8 @@ from .style import StyleClassifier
 
 @dataclass
 class Direction:
-    """A unit direction in code space (w_dim), its scale (std of the sampled mean codes
-    along it) and the classifier's accuracy on held-out samples."""
+    """A unit direction in code space (w_dim), its scale (what strength 1 adds along it,
+    ``calibrate``) and the classifier's accuracy on held-out windows."""
 
     name: str
     direction: list[float]
@@ -154,10 +154,7 @@ def calibrate(prior: LatentPrior, d: Direction, codes: Tensor, scorer: Attribute
     spread of mean codes along the direction."""
 
     def score(strength: float) -> float:
-        x = prior.generate(edit_codes(codes, d, strength))
-        if d.name.startswith("style:"):
-            return float(styles.score(x, d.name.split(":", 1)[1]).mean())
-        return float(scorer(x)[d.name].mean())
+        return float(_scores(prior.generate(edit_codes(codes, d, strength)), scorer, styles)[d.name].mean())
 
     per_unit = (score(1.0) - score(-1.0)) / 2
     factor = MAX_SCALE if per_unit <= 0 else min(score_std / per_unit, MAX_SCALE)

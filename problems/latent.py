@@ -79,15 +79,15 @@ class LatentTaskResult:
 
 def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
             metrics: dict | None = None, n_frames: int | None = None,
-            anchor: tuple | None = None) -> LatentTaskResult:
+            anchor: tuple[Motion, np.ndarray] | None = None, anchor_height: bool = True) -> LatentTaskResult:
     """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
     original's rate (default: as many as the features last). ``anchor`` (the input at the
-    model rate, its known frames, and optionally ``anchor_root``'s cutoff and height):
-    take the root's slow motion from it (``anchor_root``).
+    model rate, its known frames): take the root's slow motion from it (``anchor_root``;
+    its height too with ``anchor_height``).
     The model motion is held one frame longer so that resampling covers the last file frame."""
     model = Codec.of(prior).motion(x.double(), start, like=original)
     if anchor is not None:
-        model = anchor_root(model, *anchor)
+        model = anchor_root(model, *anchor, height=anchor_height)
     if n_frames is None:
         n_frames = int(round((model.num_frames - 1) * original.fps / model.fps)) + 1
     motion = to_file_motion(hold_last_frame(model, model.num_frames + 1), original)[:n_frames]
@@ -281,7 +281,8 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
     return _output(prior, x, prep.start, motion, inv, {"attribute": attribute, "strength": strength,
                                                       "classifier_accuracy": dirs[attribute].accuracy,
                                                       "root_path_kept": keep_path},
-                   n_frames=motion.num_frames, anchor=(prep.model, np.ones(len(prep.x), bool), ROOT_ANCHOR_HZ, False) if keep_path else None)
+                   n_frames=motion.num_frames, anchor=(prep.model, np.ones(len(prep.x), bool)) if keep_path else None,
+                   anchor_height=False)
 
 
 def resampled(prior: LatentPrior, x: Tensor, n: int) -> Tensor:

@@ -16,7 +16,7 @@ from .tasks import (add_io_options, add_prior_options, check_paths, command_line
 
 def register(sub) -> None:
     p = sub.add_parser("train-latent", help="train a latent (W+) prior on a folder of BVH files",
-                       description="Train the latent prior (GAN, then encoder, then masked encoder) on every "
+                       description="Train the latent prior (autoencoder, then denoising encoder, then masked encoder) on every "
                        "BVH file under --data. Resumes from OUT.train-state.pt when it exists; logs to OUT.log.")
     add_training_data_args(p)
     p.add_argument("--autoencoder-epochs", type=int, default=60)
