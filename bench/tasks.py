@@ -57,7 +57,7 @@ from motionopt import bvh  # noqa: E402
 from motionopt import rotations as R  # noqa: E402
 from motionopt.codec import Codec  # noqa: E402
 from motionopt.kinematics import fk  # noqa: E402
-from motionopt.metrics import foot_skating, jerk, l2p, l2q, npss  # noqa: E402
+from motionopt.metrics import foot_skating, jerk, l2p, l2q, npss, rest_heights  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
 from motionopt.noise import glitch, position_noise  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
@@ -289,14 +289,28 @@ def bench_denoise_files(prior, names: list[str], seconds: float) -> list[str]:
         def jitter(ps: list[np.ndarray]) -> float:
             return float(np.mean([float(jerk(torch.from_numpy(p), m.fps)) for p, (_, m) in zip(ps, files)]))
 
+        def sliding(ps: list[np.ndarray]) -> float:
+            return float(np.nanmean([file_skating(prior, p, c, m) for p, c, (_, m) in zip(ps, clean, files)]))
+
         frames = sum(len(c) for c in clean)
-        rows += [[f"{level * 100:g} cm", "clean", "", 0.0, jitter(clean)],
-                 [f"{level * 100:g} cm", "noisy", "", mpjpe_cm(noisy), jitter(noisy)],
+        rows += [[f"{level * 100:g} cm", "clean", "", 0.0, jitter(clean), sliding(clean)],
+                 [f"{level * 100:g} cm", "noisy", "", mpjpe_cm(noisy), jitter(noisy), sliding(noisy)],
                  [f"{level * 100:g} cm", "Butterworth (best per file)", " ".join(c.split()[0] for c in cutoffs) + " Hz",
-                  mpjpe_cm(filtered), jitter(filtered)]]
-        rows += [[f"{level * 100:g} cm", "per-joint filter (--no-refine)", "", mpjpe_cm(ours_filter), jitter(ours_filter)],
-                 [f"{level * 100:g} cm", "ours (MAP, default)", f"{frames / secs:.0f} fr/s", mpjpe_cm(ours), jitter(ours)]]
-    return lines + format_table(["noise", "method", "setting", "MPJPE cm", "jerk m/s^3"], rows)
+                  mpjpe_cm(filtered), jitter(filtered), sliding(filtered)]]
+        rows += [[f"{level * 100:g} cm", "per-joint filter (--no-refine)", "", mpjpe_cm(ours_filter), jitter(ours_filter),
+                  sliding(ours_filter)],
+                 [f"{level * 100:g} cm", "ours (MAP, default)", f"{frames / secs:.0f} fr/s", mpjpe_cm(ours), jitter(ours),
+                  sliding(ours)]]
+    return lines + format_table(["noise", "method", "setting", "MPJPE cm", "jerk m/s^3", "sliding cm/s"], rows)
+
+
+def file_skating(prior, positions: np.ndarray, clean: np.ndarray, motion: Motion) -> float:
+    """Foot sliding (cm/s) at the file's own rate, of the file's joints that the prior
+    calls contact joints, planted heights from the clean file's."""
+    names = motion.skeleton.names
+    idx = [names.index(n) for n in prior.spec.contact_joints if n in names]
+    p, c = torch.from_numpy(positions), torch.from_numpy(clean)
+    return float(foot_skating(p, motion.fps, idx, rest=rest_heights(c, idx))) * 100
 
 
 def bench_glitch(prior, clips: list[tuple[str, Motion]], seconds: float) -> list[str]:

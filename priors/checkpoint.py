@@ -174,11 +174,14 @@ def _check_sections(data: object, path: Path) -> None:
           "its metadata history must be a list of records")
 
 
-def _config_value(value: object) -> bool:
-    """A number (whole numbers within 0 to ``MAX_CONFIG_INT``), bool or string, or a list of them."""
+def _config_value(value: object, nested: bool = True) -> bool:
+    """A number (whole numbers within 0 to ``MAX_CONFIG_INT``), bool, string or None, or a
+    list of them; with ``nested``, also a config of such values (a pooled prior's anchor)."""
+    if nested and isinstance(value, dict):
+        return all(isinstance(k, str) and _config_value(v, nested=False) for k, v in value.items())
     items = value if isinstance(value, (list, tuple)) else [value]
-    return all(isinstance(v, (bool, str)) or (_number(v) and (isinstance(v, float) or 0 <= v <= MAX_CONFIG_INT))
-               for v in items)
+    return all(v is None or isinstance(v, (bool, str))
+               or (_number(v) and (isinstance(v, float) or 0 <= v <= MAX_CONFIG_INT)) for v in items)
 
 
 def _need(ok: bool, path: Path, what: str) -> None:

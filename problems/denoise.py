@@ -12,13 +12,13 @@ from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.features import to_file_motion
 from motionopt.glitches import Glitch, Swirl, fill_swirls, find_glitches, find_swirls, turn_back
-from motionopt.metrics import foot_skating, jerk
+from motionopt.metrics import acceleration, foot_skating, jerk
 from motionopt.motion import Motion
 from motionopt.smoothing import aligned_quaternions, butterworth, denoising_family, least_risk
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import (Prepared, TaskResult, TermSigmas, acceleration_sigmas, judged, plant_feet, prepare,
+from .common import (ACCELERATION_FLOOR, Prepared, TaskResult, TermSigmas, acceleration_sigmas, judged, plant_feet, prepare,
                      standard_terms)
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
@@ -84,6 +84,15 @@ def with_change(motion: Motion, before: Motion, after: Motion) -> Motion:
 #: acceleration over the prior's training clips (``common.acceleration_sigmas``).
 #: Measured on held-out clips (``bench/tasks.py``, see ``Denoise``).
 ACCELERATION_SCALE = 1.0
+#: ... and at most this times the joint's RMS acceleration in the filtered start, the
+#: clip's own estimate (empirical Bayes): the training clips' RMS is a run's, and under
+#: it a slow walk's hands kept noise that the filter had removed (held-out Bandai walk,
+#: 3 cm noise: hand jerk 4 times the clean clip's). The filtered start's RMS runs 1-3
+#: times the clean clip's; measured on 3 held-out Bandai clips at 1/3/5 cm (MPJPE cm,
+#: jerk over the clean clips'): without the cap 0.479/1.04/1.58 at the prior's rate and
+#: files' jerk 1.14/1.29/1.33; 1.0: 0.469/1.027/1.581, files 1.09/1.18/1.23; 0.8:
+#: 0.471/1.031/1.604, files 1.07/1.17/1.20; 0.5 smoothed the hips below the clean clips'.
+CLIP_ACCELERATION_SCALE = 0.7
 
 
 def denoise_options(**changes) -> SolverOptions:
@@ -96,10 +105,12 @@ def denoise_options(**changes) -> SolverOptions:
 
 #: A file recorded faster than 1.5 times the prior's rate leaves denoising low-passed at
 #: this cutoff (Hz): above the prior's band only the per-joint filter, chosen for least
-#: position error, cleaned it, and at 120 fps what it leaves there is jitter (held-out CMU
-#: files, every joint: mean jerk 1.4-3.8 times the clean captures' at 1-5 cm of noise
-#: without it, 0.47-0.65 times with it, position error within 1.5%).
-OUTPUT_CUTOFF = 20.0
+#: position error, cleaned it, and at 120 fps what it leaves there is jitter and sliding
+#: feet (held-out CMU files, every joint, 1/3/5 cm of noise: without it, mean jerk 1.4-3.8
+#: times the clean captures'; at 20 Hz, jerk 0.47-0.65 times but planted feet sliding
+#: 1.07/1.42/1.35 times; at 14 Hz 1.00/1.17/1.13 and at 10 Hz 0.96/1.02/0.99, with MPJPE
+#: 0.401/0.885/1.25 cm at 20 Hz, 0.421/0.889/1.25 at 14 and 0.462/0.899/1.25 at 10).
+OUTPUT_CUTOFF = 12.0
 
 #: A file recorded faster than the prior's rate is low-passed at this fraction of the
 #: prior's frame rate (below its Nyquist rate) before it becomes the MAP fidelity target.
@@ -154,7 +165,8 @@ class Denoise:
     ``sigma_angle`` rad; default: the estimated noise) against the prior (times
     ``prior_weight``), the contact terms and joint accelerations (``sigmas.smoothness``,
     m/s^2; by default each joint's sigma is ``acceleration_scale`` times its RMS
-    acceleration over the prior's training clips, ``common.acceleration_sigmas``);
+    acceleration over the prior's training clips, ``common.acceleration_sigmas``, and at
+    most ``clip_acceleration_scale`` times its RMS acceleration in the filtered start);
     ``setup`` builds that objective and problem. The solve's change is added to the
     filtered file (``with_change``).
     Without ``refine`` the filter's output is the result.
@@ -185,6 +197,7 @@ class Denoise:
     sigma_angle: float | None = None
     sigmas: TermSigmas = field(default_factory=TermSigmas)
     acceleration_scale: float | None = ACCELERATION_SCALE
+    clip_acceleration_scale: float | None = CLIP_ACCELERATION_SCALE
     options: SolverOptions = field(default_factory=denoise_options)
     cutoff_hz: float | None = None
     clean_feet: bool = False
@@ -228,7 +241,7 @@ class Denoise:
                                     sigma_angle * shrink, name="fidelity")
         sigmas = self.sigmas
         if sigmas.smoothness is None and self.acceleration_scale:
-            sigmas = replace(sigmas, smoothness=acceleration_sigmas(prior, self.acceleration_scale))
+            sigmas = replace(sigmas, smoothness=self._acceleration_sigmas(start))
         objective = MAPObjective(prior, prep.model.skeleton, [fidelity] + standard_terms(prep, prior, sigmas),
                                  prior_weight=self.prior_weight, prior_min_log_std=self.prior_min_log_std)
         settings = {"sigma_root": sigma_root, "sigma_angle": sigma_angle, "cutoff_hz": self.cutoff_hz,
@@ -242,6 +255,19 @@ class Denoise:
                                 "degrees_per_second": round(w.degrees_per_second)} for w in swirls]}
         return DenoiseSetup(prep, filtered, start, objective, Problem(start.x.clone(), np.ones(n, bool), start.start),
                             settings, glitches, swirls)
+
+    def _acceleration_sigmas(self, start: Prepared) -> list[float]:
+        """Per model joint: the training clips' RMS acceleration (``acceleration_scale``
+        times), capped by the filtered start's own (``clip_acceleration_scale`` times),
+        within ``ACCELERATION_FLOOR`` and ``ACCELERATION_CAP``."""
+        sigmas = acceleration_sigmas(self.prior, self.acceleration_scale)
+        if isinstance(sigmas, float):
+            sigmas = [sigmas] * start.model.skeleton.num_joints
+        if not self.clip_acceleration_scale or start.model.num_frames < 3:
+            return sigmas
+        acc = acceleration(torch.from_numpy(start.model.positions()), self.prior.spec.fps)
+        own = acc.pow(2).sum(-1).mean(0).sqrt() * self.clip_acceleration_scale
+        return [min(s, max(float(o), ACCELERATION_FLOOR)) for s, o in zip(sigmas, own)]
 
     def solve(self) -> TaskResult:
         prior = self.prior

@@ -1,4 +1,4 @@
-"""Commands about priors: train-prior, prior-info, score."""
+"""Commands about priors: train-prior, pool-priors, prior-info, score."""
 from __future__ import annotations
 
 import argparse
@@ -68,6 +68,21 @@ def register(sub) -> None:
     p.add_argument("--device", default="cpu", help="torch device to train on: cpu (default) or cuda")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("pool-priors", help="pool a change-predicting prior with an absolute-pose anchor",
+                       description="Make one autoregressive prior of two trained on the same clips: PRIOR "
+                       "(its changes of the pose are sharp one step ahead) and ANCHOR (trained with "
+                       "train-prior --absolute-pose: it keeps long rollouts from drifting). Their next-frame "
+                       "Gaussians are pooled geometrically with the anchor's weight; the sampling temperature "
+                       "is calibrated again on PRIOR's training clips (needs its data folder).")
+    p.add_argument("prior", help="change-predicting checkpoint (a file or a shipped checkpoint's name)")
+    p.add_argument("anchor", help="absolute-pose checkpoint trained on the same clips")
+    p.add_argument("--weight", type=float, default=0.5, help="the anchor's weight in the pool (default 0.5)")
+    p.add_argument("--out", required=True, help="checkpoint file to write")
+    p.add_argument("--seed", type=int, default=0, help="seed of the calibration rollouts")
+    p.add_argument("--force", action="store_true", help="overwrite OUT")
+    add_common(p)
+    p.set_defaults(func=cmd_pool)
 
     p = sub.add_parser("prior-info", help="print a prior checkpoint's metadata, or list the shipped ones",
                        description="Print the metadata of a checkpoint (a file, or a shipped checkpoint by name, "
@@ -154,6 +169,27 @@ def cmd_train(args: argparse.Namespace) -> int:
                 force=args.force)
     if not args.quiet:
         print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_pool(args: argparse.Namespace) -> int:
+    from priors.checkpoint import save_prior
+    from priors.pool import calibrate_pooled, pool_priors
+
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise UserError(f"{out} exists; pass --force to overwrite it")
+    try:
+        pooled = pool_priors(args.prior, args.anchor, args.weight)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    pooled.metadata["pool_command"] = " ".join(shlex.quote(w) for w in (
+        "motionopt", "pool-priors", args.prior, args.anchor, "--weight", f"{args.weight:g}", "--out", args.out,
+        "--seed", str(args.seed)))
+    temperature = calibrate_pooled(pooled, args.seed)
+    save_prior(pooled, out)
+    if not args.quiet:
+        print(f"wrote {out} (anchor weight {args.weight:g}, sampling temperature {temperature:g})")
     return 0
 
 
