@@ -217,8 +217,9 @@ class Denoise:
     def setup(self) -> DenoiseSetup:
         """The input as the prior sees it, its filtered copy (the solver's start), and the
         MAP objective and problem over it (what ``solve`` refines, and what benchmarks
-        evaluate E(clean), E(start) and E(result) with)."""
-        prior = self.prior
+        evaluate E(clean), E(start) and E(result) with). A pooled prior scores through its
+        change model alone (``CCNetPrior.unpooled``): every frame here is observed."""
+        prior = self.prior.unpooled() if hasattr(self.prior, "unpooled") else self.prior
         glitches, swirls, source = [], [], self.motion
         if self.repair_glitches and self.motion.num_frames > 8:
             noise = self.sigma_angle or estimate_noise(self.motion)[0]

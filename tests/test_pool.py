@@ -88,3 +88,14 @@ def test_pooling_refuses_what_it_cannot_pool(parts, tmp_path):
     save_prior(other, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="normalise"):
         pool_priors(prior, tmp_path / "other.pt", 0.5)
+
+
+def test_unpooled_is_the_change_model_alone_and_leaves_the_pool_whole(parts, x):
+    prior, _, pooled_path = parts
+    change, pooled = load_prior(prior), load_prior(pooled_path)
+    alone = pooled.unpooled()
+    for a, b in zip(alone.gaussian(x[1:], context=x[:1]), change.gaussian(x[1:], context=x[:1])):
+        assert torch.equal(a, b)
+    assert pooled.anchor is not None and alone.anchor is None
+    assert not torch.equal(pooled.gaussian(x[1:], context=x[:1])[0], alone.gaussian(x[1:], context=x[:1])[0])
+    assert change.unpooled() is change

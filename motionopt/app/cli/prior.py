@@ -186,7 +186,10 @@ def cmd_pool(args: argparse.Namespace) -> int:
     pooled.metadata["pool_command"] = " ".join(shlex.quote(w) for w in (
         "motionopt", "pool-priors", args.prior, args.anchor, "--weight", f"{args.weight:g}", "--out", args.out,
         "--seed", str(args.seed)))
-    temperature = calibrate_pooled(pooled, args.seed)
+    try:
+        temperature = calibrate_pooled(pooled, args.seed)
+    except (FileNotFoundError, KeyError) as e:
+        raise UserError(f"{args.prior}: its training clips could not be read to calibrate the pool ({e})") from None
     save_prior(pooled, out)
     if not args.quiet:
         print(f"wrote {out} (anchor weight {args.weight:g}, sampling temperature {temperature:g})")
@@ -238,6 +241,9 @@ def cmd_info(args: argparse.Namespace) -> int:
         "architecture": data["config"],
         "data": meta.get("data"),
         "training_command": meta.get("training_command"),
+        "anchor_training_command": meta.get("anchor", {}).get("training_command"),
+        "anchor_weight": data["config"].get("anchor_weight") if data["config"].get("anchor") else None,
+        "pool_command": meta.get("pool_command"),
         "train_clips": len(meta.get("train_clips", [])),
         "train_frames": meta.get("train_frames"),
         "validation_clips": meta.get("validation_clips"),
