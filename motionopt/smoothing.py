@@ -110,9 +110,8 @@ def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[
         risks = np.stack([((flat - s.apply(flat)) ** 2).reshape(n, groups, k).sum(axis=(0, 2))
                           + 2 * sigma ** 2 * k * s.trace(n) for s in usable])
     best = risks.argmin(axis=0)
-    simplest = [i for i, s in enumerate(usable) if isinstance(s, _Constant)]
-    if simplest:
-        c = simplest[0]
+    c = next((i for i, s in enumerate(usable) if isinstance(s, _Constant)), None)
+    if c is not None:
         best = np.where(risks[c] <= risks.min(axis=0) + sigma ** 2 * np.sqrt(2 * k * n), c, best)
     return [usable[i] for i in best]
 

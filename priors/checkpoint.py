@@ -272,6 +272,11 @@ def load_prior(path: str | Path):
     _check_shapes(shell.state_dict(), data["state_dict"], path)
     prior = cls(*parts, config, data["metadata"])
     prior.load_state_dict(data["state_dict"])
+    return for_evaluation(prior)
+
+
+def for_evaluation(prior: torch.nn.Module) -> torch.nn.Module:
+    """``prior`` in eval mode with its weights frozen, as loaded priors are used."""
     prior.eval()
     for p in prior.parameters():
         p.requires_grad_(False)

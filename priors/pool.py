@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 
 from .ccnet import CCNetPrior
-from .checkpoint import load_prior, resolve_checkpoint
+from .checkpoint import for_evaluation, load_prior, resolve_checkpoint
 
 #: Metadata keys of the anchor's checkpoint kept in the pooled one's, under "anchor".
 ANCHOR_KEYS = ("training_command", "train_clips", "train_frames", "validation_clips", "selected_epoch",
@@ -45,10 +45,7 @@ def pool_priors(prior_path: str | Path, anchor_path: str | Path, weight: float) 
     state.update({f"anchor.{k}": v for k, v in anchor.state_dict().items()})
     state["pool_log_scale"] = torch.zeros(prior.spec.pose_dim)
     pooled.load_state_dict(state)
-    pooled.eval()
-    for p in pooled.parameters():
-        p.requires_grad_(False)
-    return pooled
+    return for_evaluation(pooled)
 
 
 @torch.no_grad()

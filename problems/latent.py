@@ -312,12 +312,14 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
     if steps < 2:
         raise ValueError("--steps must be at least 2 (the two ends)")
     pa, pb = prepare(a, prior), prepare(b, prior)
-    out = []
+    out, inverted = [], {}
     for i in range(steps):
         alpha = i / (steps - 1)
         n = int(round((1 - alpha) * len(pa.x) + alpha * len(pb.x)))
-        xa, xb = resampled(prior, pa.x, n), resampled(prior, pb.x, n)
-        inv_a, inv_b = invert(prior, xa, options=options), invert(prior, xb, options=options)
+        if n not in inverted:   # steps of one length (inputs of one length: all) share the inversions
+            xa, xb = resampled(prior, pa.x, n), resampled(prior, pb.x, n)
+            inverted[n] = xa, xb, invert(prior, xa, options=options), invert(prior, xb, options=options)
+        xa, xb, inv_a, inv_b = inverted[n]
         x = _generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
         frames = int(round((1 - alpha) * a.num_frames + alpha * b.num_frames * a.fps / b.fps))
         path = Codec.of(prior).motion(torch.lerp(xa, xb, alpha).double(), pa.start, like=a)
