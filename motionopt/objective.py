@@ -308,6 +308,42 @@ class ContactTerm(Term):
 
 
 @dataclass
+class SkatingTerm(Term):
+    """Feet near the floor do not glide: horizontal speed with sigma ``sigma_speed`` (m/s)
+    of each contact joint, weighted by how near it is to its planted height, a logistic
+    gate that is one below ``band`` metres above it and falls to zero over ``softness``.
+
+    ``ContactTerm`` holds the feet its labels call planted; this term is for the rest, the
+    swinging foot that skims the floor at walking speed (the foot skating a person sees and
+    ``metrics.foot_skating`` counts). Being smooth in the height too, it can be lowered by
+    lifting a swinging foot clear of the floor as much as by slowing it."""
+
+    joints: list[int]
+    planted_height: np.ndarray
+    sigma_speed: float = 0.5
+    band: float = 0.03
+    softness: float = 0.005
+    name: str = "skating"
+
+    def __post_init__(self) -> None:
+        if not (self.sigma_speed > 0 and self.band > 0 and self.softness > 0):
+            raise ValueError(f"the skating term needs a positive sigma, band and softness; got {self.sigma_speed}, "
+                             f"{self.band} and {self.softness}")
+
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
+
+    def energy(self, state: WindowState) -> Tensor:
+        p = state.positions[..., max(state.lead - 1, 0):, self.joints, :]
+        step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
+        if state.lead == 0:  # the very first frame has no velocity
+            step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
+        height = p[..., -state.frames.shape[0]:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
+        gate = torch.sigmoid((self.band - height) / self.softness)
+        return (gate * _gaussian(step.pow(2).sum(-1), self.sigma_speed)).sum((-1, -2))
+
+
+@dataclass
 class SmoothnessTerm(Term):
     """Joint accelerations (m/s^2) small, with sigma ``sigma``: one for every joint, or
     one per joint of the model skeleton; uses the solved frames before the window so that

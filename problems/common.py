@@ -15,7 +15,7 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
-from motionopt.objective import ContactTerm, MAPObjective, SmoothnessTerm, Term
+from motionopt.objective import ContactTerm, MAPObjective, SkatingTerm, SmoothnessTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
 from priors.train import ACCELERATION_KEY
@@ -104,6 +104,21 @@ ACCELERATION_FLOOR = 2.0
 ACCELERATION_CAP = 14.0
 
 
+#: Sigma (m/s) of the speed of a foot near the floor that is not planted, and the height
+#: (m) above its planted height within which it counts as near (``SkatingTerm``). In path
+#: following, 0.5 within 3 cm brought held-out walks' foot skating from 1.2-1.9 times the
+#: mocap's per 5 s segment to 0.2-1.3 times (bench/paths.py; 0.2 within 1.5 cm: skating
+#: over 1.2 times in 4 of 12 segments against 0). In-betweening takes 0.2 within 1.5 cm:
+#: held-out Bandai gaps of 5/15/30 frames (bench/tasks.py) skated 1.30/2.23/2.88 times the
+#: mocap's in the same gaps without the term, 0.67/0.68/1.09 with it (L2P 0.074/0.248/0.420
+#: m against 0.080/0.227/0.425); 0.5 within 3 cm gave 0.81/0.86/1.47 (0.073/0.234/0.437):
+#: real swinging toes pass a centimetre or two above the floor, which the wider band forbids.
+SKATING_SIGMA = 0.5
+SKATING_BAND = 0.03
+INBETWEEN_SKATING_SIGMA = 0.2
+INBETWEEN_SKATING_BAND = 0.015
+
+
 @dataclass
 class TermSigmas:
     """Sigmas of the standard terms, in user units."""
@@ -112,6 +127,10 @@ class TermSigmas:
     contact_height: float = 0.02    # m from the planted height
     #: m/s^2 of joint acceleration, one for all joints or one per model joint; None: no smoothness term
     smoothness: float | Sequence[float] | None = None
+    #: m/s of a foot near the floor that is not planted (``SkatingTerm``); None: no skating term
+    skating: float | None = None
+    #: m above its planted height within which a foot counts as near the floor
+    skating_band: float = SKATING_BAND
 
 
 def acceleration_sigmas(prior, scale: float) -> float | list[float]:
@@ -131,6 +150,9 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
     terms: list[Term] = [ContactTerm(cidx, prep.planted_height, sigmas.contact_speed, sigmas.contact_height)]
     if sigmas.smoothness:
         terms.append(SmoothnessTerm(sigmas.smoothness))
+    if sigmas.skating:
+        terms.append(SkatingTerm(cidx, prep.planted_height, sigmas.skating, sigmas.skating_band,
+                                 sigmas.skating_band / 6))
     return terms
 
 

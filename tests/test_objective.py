@@ -13,7 +13,7 @@ from motionopt import rotations as R
 from motionopt.features import RootStart, advance, decode, decode_positions, encode, to_model_motion
 from motionopt.kinematics import fk_matrices
 from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
-                                 PoseFidelityTerm, SmoothnessTerm, WindowState,
+                                 PoseFidelityTerm, SkatingTerm, SmoothnessTerm, WindowState,
                                  nearest_on_polyline_sq)
 
 from priorkit import cmu_clips, features, tiny_prior
@@ -70,6 +70,9 @@ def terms():
     keyframe = np.zeros(FIRST + T + 3, bool)
     keyframe[FIRST + 2] = True
     hand = sk.names.index("rHand")
+    feet = [sk.names.index("rFoot"), sk.names.index("lFoot")]
+    pos = fk_matrices(sk.parents, R.axis_angle_to_matrix(aa), root, torch.as_tensor(sk.offsets, dtype=aa.dtype))
+    foot_heights = pos[LEAD:, feet, 1].mean(0).numpy()
     return {
         "path nearest-point": PathTerm(path, sigma=0.05),
         "path timed": PathTerm(path, sigma=0.3, targets=timed, mask=mask),
@@ -80,6 +83,8 @@ def terms():
                                                   FIRST + 4: np.array([0.0, 1.0, 0.2])}, sigma=0.01),
         "contact": ContactTerm([sk.names.index("rFoot"), sk.names.index("lFoot")], np.array([0.05, 0.06])),
         "smoothness": SmoothnessTerm(10.0),
+        # planted heights at the feet's own mean height: the gate is neither 0 nor 1
+        "skating": SkatingTerm(feet, foot_heights, softness=0.02),
         "smoothness, one sigma per joint": SmoothnessTerm(list(np.linspace(4.0, 20.0, sk.num_joints))),
     }
 
@@ -213,3 +218,23 @@ def test_raw_floor_bounds_the_prior_on_near_constant_features():
     floor = MAPObjective(prior, prior.skeleton, [])._log_std_floor()
     torch.testing.assert_close(floor[4:], torch.log(0.01 / std[4:]).clamp_min(-2.5).float())
     assert torch.equal(floor[:4], torch.full((4,), -2.5))
+
+
+def test_skating_term_costs_a_gliding_foot_on_the_floor_not_one_planted_or_clear_of_it():
+    """One foot glides at 2 m/s: it costs about (2 / sigma)^2 / 2 per frame at its planted height,
+    nothing held still there, and almost nothing 10 cm up, where it swings clear."""
+    T_, fps = 6, 30.0
+    term = SkatingTerm([0], np.array([0.05]), sigma_speed=0.5)
+
+    def state(height: float, speed: float) -> WindowState:
+        pos = torch.zeros(T_ + 1, 1, 3, dtype=torch.float64)
+        pos[:, 0, 1] = height
+        pos[:, 0, 0] = torch.arange(T_ + 1) * speed / fps
+        return WindowState(np.arange(1, T_ + 1), 1, torch.zeros(T_, 4), torch.zeros(0), torch.zeros(0), pos,
+                           torch.zeros(T_, 1), torch.zeros(T_), fps)
+
+    gate = 1 / (1 + np.exp(-term.band / term.softness))    # at the planted height itself
+    assert float(term.energy(state(0.05, 2.0))) == pytest.approx(gate * T_ * (2.0 / 0.5) ** 2 / 2, rel=1e-6)
+    assert float(term.energy(state(0.05, 0.0))) == 0.0
+    assert float(term.energy(state(0.15, 2.0))) < 1e-6 * T_ * 8
+

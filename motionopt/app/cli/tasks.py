@@ -276,8 +276,10 @@ TASKS: dict[str, TaskEntry] = {
         help="continue a motion so that its root walks along a path on the ground",
         description="Continue SEED.bvh along the ground path in PATH.csv (a header line 'x,z', optionally 't' in "
         "seconds after the seed's end, then one point per line; metres, or --path-unit, in the seed file's world "
-        "coordinates). A pace faster than a person runs is refused before any synthesis. "
-        "OUT.bvh holds the seed's frames followed by the new motion. --plot draws the root's path against the "
+        "coordinates). A pace faster than a person runs is refused before any synthesis. The prior rolls out "
+        "a walk with its root on the path, then the MAP solver solves the new frames, root included, under the "
+        "prior, the path (5 mm sigma), planted feet and feet gliding near the floor (--no-refine: the rollout "
+        "alone). OUT.bvh holds the seed's frames followed by the new motion. --plot draws the root's path against the "
         "target path.",
         arguments=(
             arg("input", metavar="SEED.bvh", help="motion whose end the new motion continues"),
@@ -291,7 +293,7 @@ TASKS: dict[str, TaskEntry] = {
                 "t column")),
         read=_read_path,
         build=lambda a, path, seed, prior: _problems().path_follow.PathFollow(
-            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=bool(a.refine),
+            seed, path[0], prior, times=path[1], speed=a.speed, seconds=a.seconds, refine=a.refine is not False,
             path_name=a.path),
         draw=_path_picture, marks=lambda task, motion: {"path": task.path}),
     "denoise": TaskEntry(
@@ -393,9 +395,9 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     add_prior_options(s)
     s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
-                   "task's result: on by default for denoise, inbetween and complete (--no-refine: the filter or "
-                   "the steered rollout alone), off by default for path-follow and edit, where with the shipped "
-                   "priors it does not improve the benchmark figures (bench/results/tasks.txt)")
+                   "task's result: on by default for denoise, path-follow, inbetween and complete (--no-refine: the "
+                   "filter or the rollout alone), off by default for edit, where with the shipped priors it does "
+                   "not improve the benchmark figures (bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
