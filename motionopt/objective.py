@@ -344,6 +344,34 @@ class SkatingTerm(Term):
 
 
 @dataclass
+class SupportTerm(Term):
+    """Some foot stands on the floor: the height above its planted height of the lowest
+    contact joint (a soft minimum over ``joints``, ``softness`` metres), where positive,
+    with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a body whose root is free
+    (prefix completion) from rising so that no foot is near the floor to glide."""
+
+    joints: list[int]
+    planted_height: np.ndarray
+    sigma: float = 0.03
+    softness: float = 0.01
+    name: str = "support"
+
+    def __post_init__(self) -> None:
+        if not (self.sigma > 0 and self.softness > 0):
+            raise ValueError(f"the support term needs a positive sigma and softness; got {self.sigma} and "
+                             f"{self.softness}")
+
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
+
+    def energy(self, state: WindowState) -> Tensor:
+        p = state.positions[..., state.lead:, self.joints, 1]
+        height = p - self.window_tensors(state.frames, p.dtype)["planted"]
+        lowest = -self.softness * torch.logsumexp(-height / self.softness, dim=-1)
+        return _gaussian(torch.relu(lowest).pow(2), self.sigma).sum(-1)
+
+
+@dataclass
 class SmoothnessTerm(Term):
     """Joint accelerations (m/s^2) small, with sigma ``sigma``: one for every joint, or
     one per joint of the model skeleton; uses the solved frames before the window so that

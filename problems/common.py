@@ -15,7 +15,7 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
-from motionopt.objective import ContactTerm, MAPObjective, SkatingTerm, SmoothnessTerm, Term
+from motionopt.objective import ContactTerm, MAPObjective, SkatingTerm, SmoothnessTerm, SupportTerm, Term
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
 from priors.train import ACCELERATION_KEY
@@ -108,13 +108,24 @@ ACCELERATION_CAP = 14.0
 #: (m) above its planted height within which it counts as near (``SkatingTerm``). In path
 #: following, 0.5 within 3 cm brought held-out walks' foot skating from 1.2-1.9 times the
 #: mocap's per 5 s segment to 0.2-1.3 times (bench/paths.py; 0.2 within 1.5 cm: skating
-#: over 1.2 times in 4 of 12 segments against 0). In-betweening takes 0.2 within 1.5 cm:
-#: held-out Bandai gaps of 5/15/30 frames (bench/tasks.py) skated 1.30/2.23/2.88 times the
-#: mocap's in the same gaps without the term, 0.67/0.68/1.09 with it (L2P 0.074/0.248/0.420
-#: m against 0.080/0.227/0.425); 0.5 within 3 cm gave 0.81/0.86/1.47 (0.073/0.234/0.437):
-#: real swinging toes pass a centimetre or two above the floor, which the wider band forbids.
+#: over 1.2 times in 4 of 12 segments against 0).
 SKATING_SIGMA = 0.5
 SKATING_BAND = 0.03
+#: Sigma (m) of the lowest foot's height above the floor (``SupportTerm``), for prefix
+#: completion, whose root is free: with the skating term alone the body
+#: rose so that no foot was near the floor to glide. Completing 5 s after the first second
+#: of held-out Bandai clips (bench/tasks.py 4b), 5 mm kept 39 of 45 seconds in the data's
+#: range, 1 cm 38, 2 cm 36, 5 cm 33. In path following the path holds the root, and 5 mm
+#: made feet skate more (2.8 times mocap's on a square against 0.5).
+SUPPORT_SIGMA = 0.005
+#: In-betweening's skating term: on held-out Bandai gaps of 5/15/30 frames (bench/tasks.py,
+#: LAFAN1 protocol) feet skated 1.30/2.23/2.88 times the mocap's in the same gaps without
+#: it (L2P 0.074/0.248/0.420 m), 0.67/0.68/1.09 with 0.2 within 1.5 cm (L2P
+#: 0.080/0.227/0.425; CMU 0.61/0.71/0.81), 0.81/0.86/1.47 with 0.5 within 3 cm (L2P
+#: 0.073/0.234/0.437). With the support term too, 0.2 within 2 cm gave Bandai
+#: 0.56/0.56/1.14 at L2P 0.083/0.225/0.407 (37% below SLERP at 30 frames), but CMU dance
+#: skated 1.55 times at 30 frames and its 5-frame L2P rose from 0.042 to 0.049 m: dancers
+#: stand on their toes, off the planted height, so in-betweening goes without it.
 INBETWEEN_SKATING_SIGMA = 0.2
 INBETWEEN_SKATING_BAND = 0.015
 
@@ -131,6 +142,8 @@ class TermSigmas:
     skating: float | None = None
     #: m above its planted height within which a foot counts as near the floor
     skating_band: float = SKATING_BAND
+    #: m of the lowest foot above the floor (``SupportTerm``); None: no support term
+    support: float | None = None
 
 
 def acceleration_sigmas(prior, scale: float) -> float | list[float]:
@@ -153,6 +166,8 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
     if sigmas.skating:
         terms.append(SkatingTerm(cidx, prep.planted_height, sigmas.skating, sigmas.skating_band,
                                  sigmas.skating_band / 6))
+    if sigmas.support:
+        terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support))
     return terms
 
 

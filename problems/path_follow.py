@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
-from motionopt.features import advance, decode_positions
+from motionopt.features import advance
 from motionopt.metrics import FOOT_SKATING_MEANS, foot_skating
 from motionopt.motion import Motion, unit_scale
 from motionopt.objective import PathTerm, nearest_on_polyline_sq
@@ -20,8 +20,9 @@ from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
 from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, Prepared, TaskResult, TermSigmas, judged,
-                     clamped_rollout, plant_feet, prepare, read_text, root_features, run, standard_terms,
+                     plant_feet, prepare, read_text, root_features, run, standard_terms,
                      warned)
+from .rollout import chosen_rollout
 
 #: Most seconds of new motion one run makes (a longer path: several runs, each continuing the last).
 MAX_NEW_SECONDS = 600.0
@@ -79,7 +80,7 @@ class PathFollow:
     the path (``root_channels``: on the path at its timing, facing along it as the seed
     faced its way of travel) and the prior rolls out the rest of each frame
     (``clamped_rollout``, at ``options.temperature_for(prior)``), each second the best of
-    ``candidates`` (``rollout``). With ``refine`` (the default) the MAP
+    ``candidates`` (``rollout.chosen_rollout``). With ``refine`` (the default) the MAP
     solver then solves every new frame, root included, under the prior, the path
     (``sigma_path`` metres from it; ``sigma_timing`` from the point its timing gives),
     planted feet (``ContactTerm``) and feet that glide near the floor (``SkatingTerm``).
@@ -192,33 +193,6 @@ class PathFollow:
         yaw = yaw_end + ramp * (yaw - yaw_end)
         return root_features(pts, yaw)
 
-    def rollout(self, prep: Prepared, root_raw: torch.Tensor) -> torch.Tensor:
-        """New frames (K, D), normalised, whose root channels are ``root_raw (K, 3)``: rolled
-        out a second at a time (``clamped_rollout``), each second as the best of
-        ``candidates`` continuations of the one before (``glide_cost``). Chosen over whole
-        rollouts, one bad second (a leg kicked up, a foot dragged) costs a second, not
-        the clip: of 8 whole 30 s rollouts the least sliding was one that hopped on one leg
-        for a second at a time."""
-        prior, spec = self.prior, self.prior.spec
-        chunk = max(int(round(spec.fps)), 1)
-        gen = torch.Generator().manual_seed(self.options.seed)
-        temperature = self.options.temperature_for(prior)
-        norm = prior.normalizer
-        state = advance(prep.start, prep.raw[:-1], spec)   # the root state before the seed's last frame
-        history, pieces = prep.x, []
-        cidx = spec.contact_indices()
-        for a in range(0, len(root_raw), chunk):
-            ctx = history[-prior.receptive_field:].expand(self.candidates, -1, -1)
-            new = clamped_rollout(prior, ctx, root_raw[a:a + chunk], slice(0, 3), temperature, gen)
-            raw = norm.denormalize(torch.cat((history[-1:].expand(self.candidates, -1, -1), new), dim=1).double())
-            with torch.no_grad():
-                feet = decode_positions(raw, spec, prep.model.skeleton, state)[..., cidx, :]
-            best = new[int(torch.argmin(glide_cost(feet, prep.planted_height, spec.fps)))]
-            state = advance(state, norm.denormalize(torch.cat((history[-1:], best[:-1])).double()), spec)
-            history = torch.cat((history, best))
-            pieces.append(best)
-        return torch.cat(pieces)
-
     def decode(self, x: torch.Tensor, prep: Prepared) -> Motion:
         return prep.codec.motion(x.double(), prep.start, like=prep.original)
 
@@ -236,7 +210,12 @@ class PathFollow:
         n_seed = len(prep.x)
         n = n_seed + n_new
         cidx = prior.spec.contact_indices()
-        x = torch.cat((prep.x, self.rollout(prep, torch.from_numpy(self.root_channels(prep, tgt, fps)))))
+        gen = torch.Generator().manual_seed(self.options.seed)
+        new = chosen_rollout(prior, prep.x, advance(prep.start, prep.raw, prior.spec), prep.model.positions()[-1, cidx],
+                             prep.model.skeleton, prep.planted_height, n_new, self.candidates,
+                             self.options.temperature_for(prior), gen,
+                             torch.from_numpy(self.root_channels(prep, tgt, fps)))
+        x = torch.cat((prep.x, new))
         model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         result = None
         if self.refine:
@@ -316,26 +295,6 @@ class PathFollow:
                 f"{UNIT_MISTAKES[unit]}, pass --path-unit {unit}" if unit else "")
         raise ValueError(f"path-follow: {self.path_name} is refused before synthesis: "
                          f"{'; '.join(text for text, _ in problems)}, {beyond}{hint}")
-
-
-#: Height (m) above its planted height within which a contact joint counts as on the
-#: floor (as ``metrics.foot_skating`` counts it).
-FLOOR_BAND = 0.03
-#: What a frame with no foot on the floor costs in ``glide_cost``, in m/s of gliding.
-AIRBORNE_COST = 1.0
-
-
-def glide_cost(feet: torch.Tensor, planted_height: np.ndarray, fps: float) -> torch.Tensor:
-    """How badly contact joints ``feet (..., T, C, 3)`` (world positions, frame 0 the one
-    before) meet the floor, per leading index: the horizontal speed (m/s) of the joints
-    within ``FLOOR_BAND`` of their planted height, summed over joints and averaged over
-    frames, plus ``AIRBORNE_COST`` times the share of frames with no joint there (a foot
-    that floats or a leg held up cannot hide its sliding by leaving the floor)."""
-    height = feet[..., 1:, :, 1] - torch.as_tensor(planted_height, dtype=feet.dtype)
-    low = height < FLOOR_BAND
-    speed = (feet[..., 1:, :, :] - feet[..., :-1, :, :])[..., [0, 2]].norm(dim=-1) * fps
-    glide = (speed * low).sum(-1).mean(-1)
-    return glide + AIRBORNE_COST * (~low.any(-1)).to(feet.dtype).mean(-1)
 
 
 def distance_warnings(dist: np.ndarray) -> list[str]:

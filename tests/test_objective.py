@@ -13,7 +13,7 @@ from motionopt import rotations as R
 from motionopt.features import RootStart, advance, decode, decode_positions, encode, to_model_motion
 from motionopt.kinematics import fk_matrices
 from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
-                                 PoseFidelityTerm, SkatingTerm, SmoothnessTerm, WindowState,
+                                 PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm, WindowState,
                                  nearest_on_polyline_sq)
 
 from priorkit import cmu_clips, features, tiny_prior
@@ -85,6 +85,7 @@ def terms():
         "smoothness": SmoothnessTerm(10.0),
         # planted heights at the feet's own mean height: the gate is neither 0 nor 1
         "skating": SkatingTerm(feet, foot_heights, softness=0.02),
+        "support": SupportTerm(feet, foot_heights - 0.02),
         "smoothness, one sigma per joint": SmoothnessTerm(list(np.linspace(4.0, 20.0, sk.num_joints))),
     }
 
@@ -238,3 +239,20 @@ def test_skating_term_costs_a_gliding_foot_on_the_floor_not_one_planted_or_clear
     assert float(term.energy(state(0.05, 0.0))) == 0.0
     assert float(term.energy(state(0.15, 2.0))) < 1e-6 * T_ * 8
 
+
+
+def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
+    """Two feet: one on the floor costs (about) nothing whatever the other does; both 6 cm
+    up cost (0.06 / sigma)^2 / 2 per frame, less the soft minimum's few millimetres."""
+    term = SupportTerm([0, 1], np.array([0.05, 0.05]), sigma=0.03, softness=0.001)
+
+    def state(h0: float, h1: float) -> WindowState:
+        pos = torch.zeros(4, 2, 3, dtype=torch.float64)
+        pos[:, 0, 1], pos[:, 1, 1] = h0, h1
+        return WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
+                           torch.zeros(3, 2), torch.zeros(3), 30.0)
+
+    assert float(term.energy(state(0.05, 0.5))) < 1e-6
+    assert float(term.energy(state(0.11, 0.11))) == pytest.approx(3 * 2.0, rel=0.05)
+    with pytest.raises(ValueError, match="positive sigma"):
+        SupportTerm([0], np.zeros(1), sigma=0.0)
