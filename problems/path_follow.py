@@ -89,10 +89,10 @@ class PathFollow:
     mocap's per 5 s); at ``sigma_path`` 2 cm the root drifted 5-10 cm off a square, and at
     1 cm 3-4 cm off a straight line, although the same poses with the root on the path
     scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
-    window, which the steeper 5 mm term pulls back. Windows of 40 frames overlapping by 12
-    (the solver's default: 34 by 17) run about 38 frames per second instead of 27 on one
-    thread, with the same figures. Without ``refine`` the rollout, its feet planted, is
-    the result.
+    window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by 12
+    (the solver's default: 34 by 17) run 30-35 frames per second on one thread against
+    24-34 at 40 by 12 (all four measures of bench/paths.py in 44 of 48 segments against
+    43). Without ``refine`` the rollout, its feet planted, is the result.
 
     A pace faster than a person moves (``MAX_HUMAN_SPEED``, along the path or joining it
     from the seed's end) is refused before any synthesis (``check_pace``): such a path is
@@ -110,7 +110,7 @@ class PathFollow:
     sigma_path: float = 0.005
     sigma_timing: float = 0.3
     sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(skating=SKATING_SIGMA))
-    options: SolverOptions = field(default_factory=lambda: SolverOptions(window=40, overlap=12))
+    options: SolverOptions = field(default_factory=lambda: SolverOptions(window=56, overlap=12))
     refine: bool = True
     candidates: int = 8
     path_name: str = "the path"
