@@ -390,14 +390,14 @@ def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list
                 ours = Inbetween(seg, [(0, 10), (10 + gap, total)], prior).solve().model_motion
                 secs += time.perf_counter() - t0
                 n_syn += gap
+                slerp = slerp_fill(seg, 10, 10 + gap)
                 # feet in the gap (and its step in and out), each clip judged against its own resting heights
                 rest = rest_heights(torch.from_numpy(seg.positions()), cidx)
-                for label, out in (("SLERP + linear root", slerp_fill(seg, 10, 10 + gap)), ("ours", ours),
-                                   ("mocap", seg)):
+                for label, out in (("SLERP + linear root", slerp), ("ours", ours), ("mocap", seg)):
                     feet = torch.from_numpy(out.positions()[9:11 + gap])
                     sk = foot_skating(feet, seg.fps, cidx, rest=rest)
                     skate[label] += 0.0 if torch.isnan(sk) else float(sk)
-                for label, out in (("SLERP + linear root", slerp_fill(seg, 10, 10 + gap)), ("ours", ours)):
+                for label, out in (("SLERP + linear root", slerp), ("ours", ours)):
                     pp = torch.from_numpy(out.positions()[10:10 + gap])
                     pt = torch.from_numpy(seg.positions()[10:10 + gap])
                     qp = torch.from_numpy(global_quats(out)[10:10 + gap])

@@ -257,7 +257,33 @@ class JointPositionTerm(Term):
 
 
 @dataclass
-class ContactTerm(Term):
+class FootTerm(Term):
+    """Base of the terms on contact joints ``joints`` and their heights when planted
+    ``planted_height (C,)`` (world y, m): the window's heights above those and ground speeds."""
+
+    joints: list[int]
+    planted_height: np.ndarray
+
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
+
+    def heights(self, state: WindowState) -> Tensor:
+        """(..., T, C) height of each joint above its planted height in the window's frames."""
+        y = state.positions[..., state.lead:, self.joints, 1]
+        return y - self.window_tensors(state.frames, y.dtype)["planted"]
+
+    def speed_sq(self, state: WindowState) -> Tensor:
+        """(..., T, C) squared horizontal speed (m^2/s^2) of each joint in the window's
+        frames, from the frame before (zero at the sequence's very first frame)."""
+        p = state.positions[..., max(state.lead - 1, 0):, self.joints, :]
+        step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
+        if state.lead == 0:  # the very first frame has no velocity
+            step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
+        return step.pow(2).sum(-1)
+
+
+@dataclass
+class ContactTerm(FootTerm):
     """Planted feet do not slide and rest at their planted height: horizontal speed with
     sigma ``sigma_speed`` (m/s), height error with sigma ``sigma_height`` (m), on the
     joint-frames whose contact weight (``WindowState.contacts``) is above ``threshold``.
@@ -266,8 +292,6 @@ class ContactTerm(Term):
     motion itself, not the prior's contact head, which fed a noisy iterate calls a third
     of the frames wrongly and brakes swinging feet."""
 
-    joints: list[int]
-    planted_height: np.ndarray
     sigma_speed: float = 0.05
     sigma_height: float = 0.02
     threshold: float = 0.5
@@ -279,9 +303,6 @@ class ContactTerm(Term):
     label_frames: int = 5
     name: str = "contact"
 
-    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
-        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
-
     @torch.no_grad()
     def labels(self, state: WindowState) -> Tensor:
         """Contact weights (T, C), 0 or 1, of a single window from its own kinematics."""
@@ -292,23 +313,17 @@ class ContactTerm(Term):
         smooth = pad.unfold(-3, k, 1).mean(-1)                       # (..., lead+T, C, 3)
         step = (smooth[..., 1:, :, [0, 2]] - smooth[..., :-1, :, [0, 2]]).norm(dim=-1) * state.fps
         speed = torch.cat((step[..., :1, :], step), dim=-2)[..., state.lead:, :]
-        height = p[..., state.lead:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
-        return ((height < self.label_height) & (speed < self.label_speed)).to(p)
+        return ((self.heights(state) < self.label_height) & (speed < self.label_speed)).to(p)
 
     def energy(self, state: WindowState) -> Tensor:
-        p = state.positions[..., self.joints, :]
-        step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
-        if state.lead == 0:  # the very first frame has no velocity
-            step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
-        speed_sq = step[..., -state.frames.shape[0]:, :, :].pow(2).sum(-1)
-        height = p[..., state.lead:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
-        w = (state.contacts > self.threshold).to(p)
-        e = w * (_gaussian(speed_sq, self.sigma_speed) + _gaussian(height.pow(2), self.sigma_height))
+        height = self.heights(state)
+        w = (state.contacts > self.threshold).to(height)
+        e = w * (_gaussian(self.speed_sq(state), self.sigma_speed) + _gaussian(height.pow(2), self.sigma_height))
         return e.sum((-1, -2))
 
 
 @dataclass
-class SkatingTerm(Term):
+class SkatingTerm(FootTerm):
     """Feet near the floor do not glide: horizontal speed with sigma ``sigma_speed`` (m/s)
     of each contact joint, weighted by how near it is to its planted height, a logistic
     gate that is one below ``band`` metres above it and falls to zero over ``softness``.
@@ -318,8 +333,6 @@ class SkatingTerm(Term):
     ``metrics.foot_skating`` counts). Being smooth in the height too, it can be lowered by
     lifting a swinging foot clear of the floor as much as by slowing it."""
 
-    joints: list[int]
-    planted_height: np.ndarray
     sigma_speed: float = 0.5
     band: float = 0.03
     softness: float = 0.005
@@ -330,28 +343,18 @@ class SkatingTerm(Term):
             raise ValueError(f"the skating term needs a positive sigma, band and softness; got {self.sigma_speed}, "
                              f"{self.band} and {self.softness}")
 
-    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
-        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
-
     def energy(self, state: WindowState) -> Tensor:
-        p = state.positions[..., max(state.lead - 1, 0):, self.joints, :]
-        step = (p[..., 1:, :, :] - p[..., :-1, :, :])[..., [0, 2]] * state.fps
-        if state.lead == 0:  # the very first frame has no velocity
-            step = torch.cat((torch.zeros_like(step[..., :1, :, :]), step), dim=-3)
-        height = p[..., -state.frames.shape[0]:, :, 1] - self.window_tensors(state.frames, p.dtype)["planted"]
-        gate = torch.sigmoid((self.band - height) / self.softness)
-        return (gate * _gaussian(step.pow(2).sum(-1), self.sigma_speed)).sum((-1, -2))
+        gate = torch.sigmoid((self.band - self.heights(state)) / self.softness)
+        return (gate * _gaussian(self.speed_sq(state), self.sigma_speed)).sum((-1, -2))
 
 
 @dataclass
-class SupportTerm(Term):
+class SupportTerm(FootTerm):
     """Some foot stands on the floor: the height above its planted height of the lowest
     contact joint (a soft minimum over ``joints``, ``softness`` metres), where positive,
     with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a body whose root is free
     (prefix completion) from rising so that no foot is near the floor to glide."""
 
-    joints: list[int]
-    planted_height: np.ndarray
     sigma: float = 0.03
     softness: float = 0.01
     name: str = "support"
@@ -361,13 +364,8 @@ class SupportTerm(Term):
             raise ValueError(f"the support term needs a positive sigma and softness; got {self.sigma} and "
                              f"{self.softness}")
 
-    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
-        return {"planted": torch.as_tensor(np.asarray(self.planted_height), dtype=dtype)}
-
     def energy(self, state: WindowState) -> Tensor:
-        p = state.positions[..., state.lead:, self.joints, 1]
-        height = p - self.window_tensors(state.frames, p.dtype)["planted"]
-        lowest = -self.softness * torch.logsumexp(-height / self.softness, dim=-1)
+        lowest = -self.softness * torch.logsumexp(-self.heights(state) / self.softness, dim=-1)
         return _gaussian(torch.relu(lowest).pow(2), self.sigma).sum(-1)
 
 

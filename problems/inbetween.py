@@ -207,7 +207,7 @@ class Inbetween:
         if b is None:
             # unplanted: the root keeps the prior's pace (planting slows the gait: 36 against
             # 22 cm MPJPE to the real continuation, bench/tasks.py); clean_feet plants by IK
-            feet = ctx_motion.positions()[-1, prior.spec.contact_indices()]
+            feet = ctx_motion[-1:].positions()[0, prior.spec.contact_indices()]
             new = chosen_rollout(prior, ctx, start, feet, prep.model.skeleton, prep.planted_height, n - a,
                                  self.candidates, self.options.temperature_for(prior), gen)
         else:
