@@ -28,11 +28,13 @@ clips named in its metadata, loaded from the data folder named there:
 5. What a user sees, on the first 10 s of 4 held-out clips of at least 4 s (spread over
    the list), each
    figure at the prior's rate on its joints: the round trip (local joint error, root
-   path distance, seconds) with the encoder alone and refined; ``denoise --method
-   latent`` at 1, 3 and 5 cm of joint noise against the noisy input and the default
-   denoiser; edits at strength +2 against -2 in user terms (mean hip height and right
-   hand height in cm, root speed in percent, the style classifier's probability of a
-   style) with the root path change; ``vary`` (mean pairwise joint distance of 4
+   path distance, seconds) with the encoder alone and refined; at 1, 3 and 5 cm of
+   joint noise, the latent inversion, ``denoise --method latent`` (the MAP denoiser with
+   the latent prior term, ``priors.latent_density``), the default denoiser and the same
+   MAP without a prior term, against the noisy input; edits at strength +2 against -2
+   (``problems.latent_edit``; mean hip height and right hand height in cm, root speed in
+   percent, the style classifier's probability of a style) with the root path change and
+   the feet's sliding against strength 0's; ``vary`` (mean pairwise joint distance of 4
    variations, and their NLL per frame under the autoregressive prior beside the
    input's); ``interpolate`` (how far each end is from its input).
 
@@ -53,6 +55,7 @@ from motionopt import attributes as A
 from motionopt import bvh
 from motionopt.codec import Codec
 from motionopt.dataset import build_dataset
+from motionopt.metrics import foot_skating
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
 from motionopt.noise import capture_noise, position_noise
@@ -60,9 +63,11 @@ from motionopt.solver import InversionOptions, refine, regulariser
 from motionopt.table import format_table
 from priors.checkpoint import CHECKPOINT_DIR, SHIPPED_LATENT, load_prior, read_checkpoint, shipped_checkpoints
 from priors.heldout import data_folder, held_out_clips
+from priors.latent_density import LatentDensity
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, LatentTask, infill, interpolate, latent_edit, reconstruct, vary
+from problems.latent import FidelityTerm, LatentTask, infill, interpolate, reconstruct, vary
+from problems.latent_edit import goal_of, latent_edit
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "latent.txt"
@@ -96,14 +101,14 @@ def reconstruction(prior, val: Tensor, iters: int, reg: float) -> list[str]:
     lines = ["1. Reconstruction of held-out windows (mm, mean Euclidean distance; paper: root 59.0, local 20.4, "
              "global 78.2 on Mixamo)",
              f"   {len(val)} windows of {prior.window} frames; refinement: L-BFGS {iters} iterations, "
-             f"fidelity sigma 5 cm, W regulariser weight {reg}"]
+             f"fidelity sigma {InversionOptions().position_sigma * 100:g} cm, W regulariser weight {reg}"]
     with torch.no_grad():
         t0 = time.perf_counter()
         codes = prior.encode(val)
         enc = prior.generate(codes)
         t_enc = (time.perf_counter() - t0) / len(val)
     rows = [("encoder G(I(m))", errors(prior, enc, val), t_enc)]
-    term = FidelityTerm(prior, val, torch.ones(val.shape[1]), 0.05)
+    term = FidelityTerm(prior, val, torch.ones(val.shape[1]), InversionOptions().position_sigma)
     t0 = time.perf_counter()
     best, _ = refine(codes, lambda c: term(prior.generate(c)) + reg * regulariser(prior, c), iters)
     t_ref = (time.perf_counter() - t0) / len(val) + t_enc
@@ -318,7 +323,7 @@ def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None
     return float(np.linalg.norm(a[frames] - b[frames], axis=-1).mean() * 1000)
 
 
-def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: float = 8.0) -> list[str]:
+def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int, seconds: float = 8.0) -> list[str]:
     """Denoising and in-betweening of held-out clips, latent inversion against the
     autoregressive MAP tasks (``problems.denoise``, ``problems.inbetween``)."""
     ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
@@ -341,7 +346,7 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
         noisy = capture_noise(clean, 0.05, 0.01, seed=i)
         record("denoise: noisy input", model_error_mm(prior, noisy, clean), 0.0)
         for label, opts in (("latent encoder", InversionOptions()),
-                            ("latent + L-BFGS 30", InversionOptions(refine_iters=30))):
+                            (f"latent + L-BFGS {iters}", InversionOptions(refine_iters=iters))):
             t0 = time.perf_counter()
             out = reconstruct(prior, noisy, opts).motion
             record(f"denoise: {label}", model_error_mm(prior, out, clean), time.perf_counter() - t0)
@@ -356,7 +361,7 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], seconds: fl
         seen[a:b] = False
         gap = slice(int(a * prior.spec.fps / clean.fps), int(b * prior.spec.fps / clean.fps))
         for label, opts in (("latent masked encoder", InversionOptions()),
-                            ("latent masked + L-BFGS 30", InversionOptions(refine_iters=30))):
+                            (f"latent masked + L-BFGS {iters}", InversionOptions(refine_iters=iters))):
             t0 = time.perf_counter()
             out = infill(prior, clean, seen, opts).motion
             record(f"in-between 1.5 s: {label}", model_error_mm(prior, out, clean, gap), time.perf_counter() - t0)
@@ -429,15 +434,19 @@ def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iter
             noisy, _ = position_noise(clip, level, seed=i)
             tag = f"denoise {level * 100:g} cm"
             record(f"{tag}: noisy input", model_error_mm(prior, noisy, clip) / 10, 0.0)
-            for label, opts in (("latent", InversionOptions()), (f"latent + L-BFGS {iters}",
-                                                                  InversionOptions(refine_iters=iters))):
+            for label, opts in (("latent inversion", InversionOptions()), (f"latent inversion + L-BFGS {iters}",
+                                                                            InversionOptions(refine_iters=iters))):
                 t0 = time.perf_counter()
                 out = LatentTask(noisy, prior, options=opts).solve().motion
                 record(f"{tag}: {label}", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
+            cases = [("denoise --method latent (MAP, latent prior term)", lambda: Denoise(noisy, LatentDensity(prior)))]
             if ar is not None:
+                cases += [("default denoiser (MAP, autoregressive prior)", lambda: Denoise(noisy, ar)),
+                          ("the same MAP without a prior term", lambda: Denoise(noisy, ar, prior_weight=0.0))]
+            for label, task in cases:
                 t0 = time.perf_counter()
-                out = Denoise(noisy, ar).solve().motion
-                record(f"{tag}: default denoiser", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
+                out = task().solve().motion
+                record(f"{tag}: {label}", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
     lines = [f"5. What a user sees: the first {seconds:g} s of {len(motions)} held-out clips "
              f"({', '.join(spread(clips, 4))}); {iters} L-BFGS iterations where refined"]
     lines += format_table(["case", "clips", "local mm / error cm", "root path cm", "s/clip"],
@@ -461,11 +470,15 @@ def edit_figures(prior, motions: list[Motion]) -> list[str]:
     for name, d in sorted(dirs.items()):
         if name not in measure and not name.startswith("style:"):
             continue
-        moves, paths = [], []
+        moves, paths, slides = [], [], []
         for clip in motions:
             ends = {s: latent_edit(prior, clip, name, s) for s in (-2.0, 0.0, 2.0)}
-            root = {s: codec.model_motion(r.motion).positions()[:, 0, [0, 2]] for s, r in ends.items()}
-            paths.append(max(float(np.linalg.norm(root[s] - root[0.0], axis=-1).mean() * 100) for s in (-2.0, 2.0)))
+            pos = {s: codec.model_motion(r.motion).positions() for s, r in ends.items()}
+            paths.append(max(float(np.linalg.norm(pos[s][:, 0, [0, 2]] - pos[0.0][:, 0, [0, 2]], axis=-1).mean() * 100)
+                             for s in (-2.0, 2.0)))
+            slide = {s: float(foot_skating(torch.from_numpy(p), prior.spec.fps, prior.spec.contact_indices()))
+                     for s, p in pos.items()}
+            slides.append(max(slide[-2.0], slide[2.0]) / max(slide[0.0], 1e-9))
             if name in measure:
                 key = measure[name][0]
                 lo, hi = (user_measures(prior, ends[s].motion)[key] for s in (-2.0, 2.0))
@@ -477,17 +490,21 @@ def edit_figures(prior, motions: list[Motion]) -> list[str]:
                           if classifier is not None else float("nan") for s in (-2.0, 2.0))
                 moves.append(hi - lo)
         if name in measure:
-            rows.append([name, measure[name][1], f"{np.mean(moves):+.1f}", f"{np.mean(paths):.1f}"])
+            rows.append([name, goal_of(prior, name).unit, measure[name][1], f"{np.mean(moves):+.1f}",
+                         f"{np.mean(paths):.1f}", f"{np.mean(slides):.2f}"])
         else:
-            style_moves.append((name, float(np.mean(moves)), float(np.mean(paths))))
+            style_moves.append((name, float(np.mean(moves)), float(np.mean(paths)), float(np.mean(slides))))
     lines = ["   edits, strength +2 against -2 (change of the measure; root path: mean horizontal distance from "
-             "strength 0, cm, the larger of +-2)"]
-    lines += format_table(["edit", "measure", "change", "root path cm"], rows)
+             "strength 0, cm, the larger of +-2; feet: foot skating at +-2, the larger, over strength 0's)"]
+    lines += format_table(["edit", "unit", "measure", "change", "root path cm", "feet"], rows)
     if style_moves:
-        lines.append("   styles: probability the style classifier gives the style, +2 minus -2 (mean over clips): " +
-                     ", ".join(f"{n.split(':')[1]} {m:+.2f}" for n, m, _ in style_moves))
-        lines.append(f"   styles raising the probability by at least 0.3: {sum(m >= 0.3 for _, m, _ in style_moves)} "
-                     f"of {len(style_moves)}; root path change up to {max(p for *_, p in style_moves):.1f} cm")
+        lines.append(f"   styles ({goal_of(prior, style_moves[0][0]).unit}): probability the style classifier gives "
+                     "the style, +2 minus -2 (mean over clips): " +
+                     ", ".join(f"{n.split(':')[1]} {m:+.2f}" for n, m, *_ in style_moves))
+        lines.append(f"   styles raising the probability by at least 0.3: {sum(m >= 0.3 for _, m, *_ in style_moves)} "
+                     f"of {len(style_moves)}; root path change up to {max(p for _, _, p, _ in style_moves):.1f} cm; "
+                     f"feet sliding {min(f for *_, f in style_moves):.2f}-{max(f for *_, f in style_moves):.2f} "
+                     "times strength 0's")
     return lines
 
 
@@ -534,7 +551,7 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
     ar = CHECKPOINT_DIR / AR_FOR[path.name] if path.name in AR_FOR else None
     lines += sampling(prior, ar, clip_windows(train_x, prior.window, 8), clip_windows(val_x, prior.window, 8))
     lines += semantic(prior)
-    lines += tasks(prior, ar, data, meta["validation_clips"])
+    lines += tasks(prior, ar, data, meta["validation_clips"], iters)
     lines += user_figures(prior, ar, data, meta["validation_clips"], iters)
     return lines
 
@@ -542,8 +559,8 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("checkpoints", nargs="*", type=Path)
-    ap.add_argument("--refine-iters", type=int, default=30)
-    ap.add_argument("--reg", type=float, default=0.05)
+    ap.add_argument("--refine-iters", type=int, default=200)
+    ap.add_argument("--reg", type=float, default=InversionOptions().reg_weight)
     ap.add_argument("--threads", type=int, default=None)
     args = ap.parse_args()
     if args.threads:

@@ -9,7 +9,6 @@ the result back on the user's skeleton, frame rate and unit.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,7 +23,7 @@ from motionopt.motion import Motion
 from motionopt.smoothing import local_linear
 from priors.checkpoint import load_prior_of_kind
 from priors.latent import LatentPrior
-from priors.semantic import PACE, Direction, directions_of, edit_codes, fit_attribute_directions
+from priors.semantic import Direction, directions_of, fit_attribute_directions
 
 from .common import Prepared, prepare
 from .inbetween import check_ranges
@@ -77,7 +76,7 @@ class LatentTaskResult:
                 "nit": inv.nit, "timings": inv.timings}
 
 
-def _output(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
+def result_of(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
             metrics: dict | None = None, n_frames: int | None = None,
             anchor: tuple[Motion, np.ndarray] | None = None, anchor_height: bool = True) -> LatentTaskResult:
     """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
@@ -142,7 +141,7 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: InversionOptions = 
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     inv = invert(prior, prep.x, terms=[term], options=options)
-    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
+    return result_of(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
                    anchor=(prep.model, np.ones(len(prep.x), bool)))
 
 
@@ -161,7 +160,7 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     weights[max(0, t - blend_frames):t + blend_frames] = 0.0
     term = FidelityTerm(prior, x, weights, options.position_sigma)
     inv = invert(prior, x, terms=[term], options=options)
-    return _output(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
+    return result_of(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
 
 
 def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: InversionOptions = InversionOptions()
@@ -179,7 +178,7 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Invers
         raise ValueError("no frame is seen: give at least one known frame")
     term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
     inv = invert(prior, prep.x, mask=mask, terms=[term], options=options)
-    return _output(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
+    return result_of(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
                    anchor=(prep.model, mask.numpy()))
 
 
@@ -251,7 +250,7 @@ def directions(prior: LatentPrior) -> dict[str, Direction]:
     return found
 
 
-def _invert_input(prior: LatentPrior, motion: Motion, options: InversionOptions) -> tuple[Prepared, InversionResult]:
+def invert_input(prior: LatentPrior, motion: Motion, options: InversionOptions) -> tuple[Prepared, InversionResult]:
     prep = prepare(motion, prior)
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     return prep, invert(prior, prep.x, terms=[term] if options.refine_iters or options.pso_iters else None,
@@ -261,28 +260,6 @@ def _invert_input(prior: LatentPrior, motion: Motion, options: InversionOptions)
 @torch.no_grad()
 def _generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_frames: int) -> Tensor:
     return blend(prior.generate(codes), inv.starts, max(n_frames, inv.starts[-1] + prior.window))[:n_frames]
-
-
-def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: float,
-                options: InversionOptions = InversionOptions()) -> LatentTaskResult:
-    """Move the motion's codes ``strength`` along an attribute's direction in code space
-    (MoDi 4.1) and generate. Every edit but the pace's (``root_speed``) keeps the input's
-    slow root path and heading (``anchor_root``): a crouch or a style changes the body,
-    not where it walks."""
-    dirs = directions(prior)
-    if attribute not in dirs:
-        raise ValueError(f"unknown attribute {attribute!r}; this prior knows: {', '.join(sorted(dirs))}")
-    t0 = time.perf_counter()
-    prep, inv = _invert_input(prior, motion, options)
-    codes = edit_codes(inv.wplus, dirs[attribute], strength)
-    x = _generate_clip(prior, codes, inv, len(prep.x))
-    inv.timings["total"] = time.perf_counter() - t0
-    keep_path = attribute != PACE
-    return _output(prior, x, prep.start, motion, inv, {"attribute": attribute, "strength": strength,
-                                                      "classifier_accuracy": dirs[attribute].accuracy,
-                                                      "root_path_kept": keep_path},
-                   n_frames=motion.num_frames, anchor=(prep.model, np.ones(len(prep.x), bool)) if keep_path else None,
-                   anchor_height=False)
 
 
 def resampled(prior: LatentPrior, x: Tensor, n: int) -> Tensor:
@@ -301,14 +278,23 @@ def resampled(prior: LatentPrior, x: Tensor, n: int) -> Tensor:
     return prior.normalizer.normalize(out).float()
 
 
+def between(a: RootStart, b: RootStart, alpha: float) -> RootStart:
+    """The start ``alpha`` of the way from ``a`` to ``b``: positions and floor linearly,
+    the heading the short way round."""
+    turn = float(wrap_angle(torch.tensor(b.yaw - a.yaw)))
+    return RootStart(a.yaw + alpha * turn, a.x + alpha * (b.x - a.x), a.z + alpha * (b.z - a.z),
+                     a.ground + alpha * (b.ground - a.ground))
+
+
 def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: InversionOptions = InversionOptions()
                 ) -> list[LatentTaskResult]:
     """``steps`` motions whose codes go linearly from A's to B's; the first is G(I(A)), the
-    last G(I(B)); roots start where A starts. Clips of different lengths: step i lasts
+    last G(I(B)); step i starts at the blend of where and facing where A and B start
+    (``between``), so that each end stands where its input does. Clips of different lengths: step i lasts
     the linear blend of the two lengths, and both inputs are played in that time
     (``resampled``: same path and turns, faster or slower) before their codes are blended.
     Each step's slow root path is that of the inputs' blended features (``anchor_root``):
-    the ends follow their inputs' paths (B's from where A starts)."""
+    the ends follow their inputs' paths."""
     if steps < 2:
         raise ValueError("--steps must be at least 2 (the two ends)")
     pa, pb = prepare(a, prior), prepare(b, prior)
@@ -322,9 +308,10 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
         xa, xb, inv_a, inv_b = inverted[n]
         x = _generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
         frames = int(round((1 - alpha) * a.num_frames + alpha * b.num_frames * a.fps / b.fps))
-        path = Codec.of(prior).motion(torch.lerp(xa, xb, alpha).double(), pa.start, like=a)
-        out.append(_output(prior, x, pa.start, a, inv_a, {"alpha": alpha, "frames_model": n}, n_frames=frames,
-                           anchor=(path, np.ones(n, bool))))
+        start = between(pa.start, pb.start, alpha)
+        path = Codec.of(prior).motion(torch.lerp(xa, xb, alpha).double(), start, like=a)
+        out.append(result_of(prior, x, start, a, inv_a, {"alpha": alpha, "frames_model": n}, n_frames=frames,
+                             anchor=(path, np.ones(n, bool))))
     return out
 
 
@@ -335,13 +322,13 @@ def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int
     0.1-0.8), one offset per variation shared by all windows and codes."""
     if count < 1:
         raise ValueError("--count must be at least 1")
-    prep, inv = _invert_input(prior, motion, options)
+    prep, inv = invert_input(prior, motion, options)
     g = torch.Generator().manual_seed(seed)
     out = []
     for i in range(count):
         eps = torch.randn(prior.config.w_dim, generator=g) * sigma
         delta = (eps * prior.w_scales) @ prior.w_components
         x = _generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
-        out.append(_output(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed},
+        out.append(result_of(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed},
                            n_frames=motion.num_frames))
     return out

@@ -329,3 +329,94 @@ def test_interpolation_between_clips_of_different_lengths(prior):
     steps_sum = slow[:, prior.spec.slices()["root_delta"]].sum(0)
     assert torch.allclose(steps_sum, Codec.of(prior).raw(x.double())[:, prior.spec.slices()["root_delta"]].sum(0),
                           rtol=0.05, atol=0.02)
+
+
+def test_edit_solve_reaches_the_goal_that_the_plain_step_misses(prior):
+    """A crouch at +2 asks for hips 6 cm lower: the solve gets the generated clip nearer
+    that goal than the unedited clip and than MoDi's plain step; the arms, which a crouch
+    leaves alone, move less than the legs."""
+    from problems.latent_edit import CROUCH_M_PER_UNIT, goal_of, kept_dims, latent_edit, leg_joints
+
+    clip = bvh.load(cmu_clips()[0])
+    solved = latent_edit(prior, clip, "crouch", 2.0).metrics
+    assert solved["goal_target"] == pytest.approx(solved["goal_unedited"] - 2 * CROUCH_M_PER_UNIT, abs=1e-6)
+    assert abs(solved["goal_reached"] - solved["goal_target"]) < 0.5 * abs(solved["goal_unedited"] - solved["goal_target"])
+    step = latent_edit(prior, clip, "crouch", 2.0, iters=0)
+    unedited = latent_edit(prior, clip, "crouch", 0.0)
+    hips = {k: Codec.of(prior).model_motion(r.motion).positions()[:, 0, 1].mean() for k, r in
+            (("solved", latent_edit(prior, clip, "crouch", 2.0)), ("step", step), ("unedited", unedited))}
+    assert hips["unedited"] - hips["solved"] > max(hips["unedited"] - hips["step"], 0.02)
+    legs = leg_joints(prior)
+    assert set(prior.spec.contact_joints) <= legs and prior.spec.joints[0] not in legs
+    kept = kept_dims(prior, goal_of(prior, "crouch").free)
+    assert len(kept) == 6 * (len(prior.spec.joints) - 1 - len(legs))
+    names = prior.spec.joints
+    arms = [j for j, n in enumerate(names) if "Arm" in n or "Hand" in n]
+    leg_idx = [j for j, n in enumerate(names) if n in legs]
+    moved = [np.abs(Codec.of(prior).model_motion(r.motion).rotations - Codec.of(prior).model_motion(unedited.motion).rotations)
+             for r in (latent_edit(prior, clip, "crouch", 2.0),)][0]
+    assert moved[:, arms].mean() < moved[:, leg_idx].mean()
+
+
+def test_as_decoded_leaves_real_motion_alone_and_squares_up_rotations(prior):
+    """Features of a real motion are already what decoding gives; a skewed 6D pair is
+    made orthonormal, which is what the written motion would show."""
+    from problems.latent_edit import as_decoded
+
+    codec = Codec.of(prior)
+    x = codec.features(codec.model_motion(bvh.load(cmu_clips()[0])))[:40]
+    assert torch.allclose(as_decoded(codec, x), x, atol=1e-3)
+    skew = x.clone()
+    skew[:, prior.spec.slices()["joint_rotations"]] += 0.5
+    fixed = as_decoded(codec, skew)
+    assert torch.allclose(codec.positions(fixed), codec.positions(skew), atol=1e-4)
+    assert (fixed - x).abs().mean() < (skew - x).abs().mean()
+
+
+def test_interpolation_ends_stand_where_their_inputs_do(prior):
+    """The last step of an interpolation starts where B starts and faces B's way, not A's."""
+    from motionopt.features import heading_angle, wrap_angle
+    from motionopt.rotations import quat_apply
+    from problems.latent import interpolate
+
+    a, b = (bvh.load(p) for p in cmu_clips())
+    q = yaw_quat(torch.tensor(1.5, dtype=torch.float64))
+    rot = b.rotations.copy()
+    rot[:, 0] = quat_multiply(q, torch.from_numpy(rot[:, 0])).numpy()
+    root = b.root[0] + quat_apply(q.expand(b.num_frames, 4), torch.from_numpy(b.root - b.root[0])).numpy()
+    turned = b.with_frames(rot, root + np.array([3.0, 0.0, -2.0]), b.translations)
+    steps = interpolate(prior, a, turned, 3)
+
+    def heading(m) -> float:
+        return float(heading_angle(torch.from_numpy(m.rotations[:1, 0]))[0])
+
+    for out, given in ((steps[0].motion, a), (steps[-1].motion, turned)):
+        assert np.linalg.norm(out.root[0, [0, 2]] - given.root[0, [0, 2]]) < 0.1
+        assert abs(float(wrap_angle(torch.tensor(heading(out) - heading(given))))) < 0.2
+    mid = steps[1].motion.root[0, [0, 2]]
+    assert np.linalg.norm(mid - (a.root[0, [0, 2]] + turned.root[0, [0, 2]]) / 2) < 0.2
+
+
+def test_latent_density_scores_real_motion_above_a_noisy_copy(prior):
+    """As the MAP solver's prior term the latent prior scores each frame around its
+    reconstruction G(I(x)): a clip scores better than the same clip with 3 cm of joint
+    noise, the score is differentiable in the frames, and contacts come out as probabilities."""
+    from motionopt.noise import position_noise
+    from priors.latent_density import LatentDensity
+
+    density = LatentDensity(prior)
+    codec = Codec.of(prior)
+    clip = codec.model_motion(bvh.load(cmu_clips()[0]))
+    noisy, _ = position_noise(clip, 0.03, seed=1)
+    x, xn = codec.features(clip), codec.features(noisy)
+    assert float(density.nll(x[1:], x[:1]).mean()) < float(density.nll(xn[1:], xn[:1]).mean())
+    window = x[10:30].clone().requires_grad_(True)
+    nll, contacts = density.nll_and_contacts(window, x[:10])
+    assert nll.shape == (20,) and contacts.shape == (20, prior.spec.num_contacts)
+    assert float(contacts.min()) >= 0 and float(contacts.max()) <= 1
+    nll.sum().backward()
+    assert torch.isfinite(window.grad).all() and float(window.grad.abs().sum()) > 0
+    batched = density.nll(torch.stack((x[10:30], xn[10:30])), x[:10])
+    assert torch.allclose(batched[0], nll.detach(), atol=1e-4)
+    with pytest.raises(NotImplementedError, match="autoregressive"):
+        density.sample(x[:10], 5)

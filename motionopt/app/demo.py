@@ -85,7 +85,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     from problems.denoise import Denoise
     from problems.edit import JointTarget, SpatialEdit
     from problems.inbetween import Inbetween, complete
-    from problems.latent import latent_edit
+    from problems.latent_edit import latent_edit
     from problems.path_follow import PathFollow
 
     from ..metrics import mpjpe
@@ -187,7 +187,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     step("spatial edit", "the move's right hand raised 15 cm at frames 30-36", ["edit.bvh", "edit.png"],
          {"target_error_cm_max": res.metrics["target_error_cm_max"]}, t0)
 
-    # 6. Latent edit: the walk moved along the latent prior's crouch direction.
+    # 6. Latent edit: the walk crouched by two units (hips 6 cm lower) through the latent prior.
     t0 = time.perf_counter()
     progress("latent edit: a lower walk through the latent prior")
     res = latent_edit(load_prior_cached(CHECKPOINT_DIR / "bandai-latent.pt"), walk, "crouch", 2.0)
@@ -196,7 +196,7 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
                         title="Latent edit: the walk at crouch strength +2")
     _write_report(out / "latent-edit.json", res, {"task": "latent-edit", "attribute": "crouch", "strength": 2.0})
     hip_drop = float((walk.positions()[:, 0, 1] - res.motion.positions()[:, 0, 1]).mean() * 100)
-    step("latent edit", "the walk edited along the latent prior's crouch direction (strength +2)",
+    step("latent edit", "the walk crouched through the latent prior (strength +2: hips 6 cm lower)",
          ["latent-edit.bvh", "latent-edit.png"], {"hip_drop_cm": hip_drop}, t0)
 
     (out / "summary.json").write_text(json.dumps(

@@ -81,10 +81,10 @@ class InversionOptions:
 
     overlap: int = 16
     refine_iters: int = 0
-    reg_weight: float = 0.05
+    reg_weight: float = 0.01
     pso_iters: int = 0
     pso_particles: int = 16
     pso_components: int = 8
     pso_bound: float = 2.0
-    position_sigma: float = 0.05
+    position_sigma: float = 0.02
     seed: int = 0

@@ -45,13 +45,17 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_fuse)
 
     p = sub.add_parser("latent-edit", help="strengthen or weaken an attribute by moving in the latent space",
-                       description="Encode the motion into W+, move along the attribute's direction "
-                       "(strength in standard deviations of the codes), generate. Attributes: gral (gradual right-arm "
-                       "lift), root_speed, crouch, and style:NAME for priors trained on Bandai clips; "
-                       "`--attribute list` prints those of the prior. --plot draws input over output.")
+                       description="Encode the motion into W+, step along the attribute's direction, then refine "
+                       "the codes (L-BFGS under the latent prior) until the edit reaches its goal in user terms, "
+                       "keeping the joints the attribute does not move and the feet planted. Strength units: crouch, "
+                       "hips 3 cm lower (a negative strength never raises them above their highest in the clip); "
+                       "gral (right-arm lift), the right arm 20 degrees higher; root_speed, speed times 1.2; "
+                       "style:NAME (priors trained on Bandai clips), the style classifier's probability +0.25. "
+                       "`--attribute list` prints the attributes of the prior. --plot draws input over output.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--attribute", required=True, help="attribute name, or 'list'")
-    p.add_argument("--strength", type=float, default=1.0, help="standard deviations of the codes along the direction")
+    p.add_argument("--strength", type=float, default=1.0,
+                   help="units of the attribute's edit (see above); negative weakens it (default 1)")
     _task_options(p, "BVH file to write (not needed with --attribute list)", out_required=False)
     p.set_defaults(func=cmd_edit)
 
@@ -108,7 +112,7 @@ def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, o
     s.add_argument("--refine", type=int, default=0, metavar="ITERS",
                    help="L-BFGS iterations refining the encoder's code toward the input (default 0: encoder only)")
     s.add_argument("--pso", type=int, default=0, metavar="ITERS", help="PSO iterations before refinement")
-    s.add_argument("--reg", type=float, default=0.05,
+    s.add_argument("--reg", type=float, default=0.01,
                    help="weight keeping refined codes near the training codes' distribution")
 
 
@@ -210,7 +214,8 @@ def cmd_fuse(args: argparse.Namespace) -> int:
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
-    from problems.latent import directions, latent_edit
+    from problems.latent import directions
+    from problems.latent_edit import latent_edit
 
     if args.attribute != "list" and not args.out:
         raise UserError("--out is required (or use --attribute list)")
@@ -220,7 +225,10 @@ def cmd_edit(args: argparse.Namespace) -> int:
             print(f"{name:>24}: classifier accuracy {d.accuracy:.2f} ({d.source})")
         return 0
     result = latent_edit(run.prior, run.motions[0], args.attribute, args.strength, _options(args))
-    return _finish(run, [result], f"{args.attribute} {args.strength:+g}")
+    code = _finish(run, [result], f"{args.attribute} {args.strength:+g}")
+    if "goal_summary" in result.metrics and not (args.quiet or args.json):
+        print(result.metrics["goal_summary"])
+    return code
 
 
 def cmd_vary(args: argparse.Namespace) -> int:

@@ -1,8 +1,9 @@
 """The editing task commands: path-follow, denoise, inbetween, complete, edit.
 
 Each command is one entry of ``TASKS``: its help, its own arguments, and how the parsed
-arguments become a task object of ``problems/`` (the latent prior's ``LatentTask`` with
-``--method latent``). Every command then runs the same steps, which the batch shares:
+arguments become a task object of ``problems/`` (with ``--method latent``, the latent
+prior's ``LatentTask``, or for denoising ``Denoise`` over ``priors.latent_density``).
+Every command then runs the same steps, which the batch shares:
 ``start`` checks all inputs and outputs before solving, so that a mistake costs no time
 and writes nothing, and builds the task; ``solve`` runs it with a progress bar over the
 solver's windows; ``write_result`` writes the BVH with ``bvh.save`` (atomic), the optional
@@ -258,6 +259,13 @@ def _kept_ranges(args: argparse.Namespace, motion: Motion) -> list[tuple[int, in
     return inbetween.check_ranges(inbetween.parse_ranges(args.keep), motion.num_frames)
 
 
+def _latent_density(prior):
+    """The latent prior as the MAP solver's prior term (``priors.latent_density``)."""
+    from priors.latent_density import LatentDensity
+
+    return LatentDensity(prior)
+
+
 def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], motion: Motion, prior):
     """In-betweening with the latent prior, --after applied as the autoregressive task applies it."""
     problems = _problems()
@@ -316,7 +324,9 @@ TASKS: dict[str, TaskEntry] = {
         build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
                                                                       clean_feet=a.clean_feet,
                                                                       repair_glitches=not a.keep_glitches),
-        latent=lambda a, _, motion, prior: _problems().latent.LatentTask(motion, prior),
+        latent=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, _latent_density(prior),
+                                                                       refine=a.refine is not False,
+                                                                       repair_glitches=not a.keep_glitches),
         draw=_foot_trajectory, new_frames=False),
     "inbetween": TaskEntry(
         help="fill the frames between kept frame ranges",
@@ -390,8 +400,9 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     s = p.add_argument_group("prior and solver")
     if method:
         s.add_argument("--method", choices=METHODS, default="ar",
-                       help="ar: MAP optimisation under the autoregressive prior (default); latent: inversion "
-                       "of the latent (W+) prior")
+                       help="ar: MAP optimisation under the autoregressive prior (default); latent: the latent "
+                       "(W+) prior (denoise: the same MAP solve with the latent prior as its prior term; inbetween "
+                       "and complete: inversion of the latent prior)")
     add_prior_options(s)
     s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
@@ -509,8 +520,11 @@ def start(args: argparse.Namespace, progress: Callable[[dict], object] | None = 
     inputs = entry.read(args, motion)
     prior, prior_path = load_prior(motion, args, "LatentPrior" if latent else "CCNetPrior")
     if latent:
+        from motionopt.solver import InversionOptions
+
         task = entry.latent(args, inputs, motion, prior)
-        task.options = latent_options(args, task.options)
+        task.options = (latent_options(args, task.options) if isinstance(task.options, InversionOptions)
+                        else solver_options(args, task.options, progress))
     else:
         task = entry.build(args, inputs, motion, prior)
         task.options = solver_options(args, task.options, progress)
