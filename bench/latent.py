@@ -23,8 +23,9 @@ clips named in its metadata, loaded from the data folder named there:
    directions (Bandai) are checked by the checkpoint's style classifier
    (``priors.style``): the probability it gives the style must rise with strength.
 4. Tasks on held-out clips, latent inversion against the autoregressive MAP tasks of
-   the same name: denoising (accuracy against the clean clip) and in-betweening of a
-   1.5 s gap (accuracy on the gap), with seconds per clip.
+   the same name: denoising (accuracy against the clean clip), completion of the second
+   after the first (accuracy on that second) and in-betweening of a 1.5 s gap (accuracy
+   on the gap), with seconds per clip.
 5. What a user sees, on the first 10 s of 4 held-out clips of at least 4 s (spread over
    the list), each
    figure at the prior's rate on its joints: the round trip (local joint error, root
@@ -44,6 +45,7 @@ and, for the shipped checkpoints, written to bench/results/latent.txt.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import time
 from pathlib import Path
 
@@ -66,7 +68,7 @@ from priors.heldout import data_folder, held_out_clips
 from priors.latent_density import LatentDensity
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, LatentTask, infill, interpolate, reconstruct, vary
+from problems.latent import FidelityTerm, LatentTask, interpolate, reconstruct, vary
 from problems.latent_edit import goal_of, latent_edit
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -323,15 +325,24 @@ def model_error_mm(prior, out: Motion, clean: Motion, frames: slice = slice(None
     return float(np.linalg.norm(a[frames] - b[frames], axis=-1).mean() * 1000)
 
 
+def latent_cases(iters: int) -> list[tuple[str, InversionOptions, bool]]:
+    """Section 4's latent rows: label, inversion options, whether the MAP solve of the
+    filled frames follows (``problems.latent.solve_unseen``, what --method latent runs)."""
+    return [("latent masked encoder", InversionOptions(), False),
+            (f"latent masked + L-BFGS {iters}", InversionOptions(refine_iters=iters), False),
+            (f"latent masked + L-BFGS {iters} + MAP solve (--method latent --iterations {iters})",
+             InversionOptions(refine_iters=iters), True)]
+
+
 def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int, seconds: float = 8.0) -> list[str]:
     """Denoising and in-betweening of held-out clips, latent inversion against the
     autoregressive MAP tasks (``problems.denoise``, ``problems.inbetween``)."""
     ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
     try:
         from problems.denoise import Denoise
-        from problems.inbetween import Inbetween
+        from problems.inbetween import Inbetween, complete
     except ImportError as e:
-        Denoise = Inbetween = None  # noqa: N806
+        Denoise = Inbetween = complete = None  # noqa: N806
         ar_note = f"autoregressive tasks unavailable ({e})"
     else:
         ar_note = "" if ar is not None else "no autoregressive prior for this data"
@@ -354,16 +365,30 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
             t0 = time.perf_counter()
             out = Denoise(noisy, ar).solve().motion
             record(f"denoise: AR task default ({ar_path.name})", model_error_mm(prior, out, clean), time.perf_counter() - t0)
+        prefix, upto = int(clean.fps), int(2 * clean.fps)  # the second after the first
+        if clean.num_frames >= upto:
+            after = slice(int(prefix * prior.spec.fps / clean.fps), int(upto * prior.spec.fps / clean.fps))
+            for label, opts, solved in latent_cases(iters):
+                t0 = time.perf_counter()
+                task = LatentTask.completion(clean, prefix, upto, prior, opts)
+                out = (task if solved else replace(task, map_options=None)).solve().motion
+                record(f"complete 1 s after 1 s: {label}", model_error_mm(prior, out, clean[:upto], after),
+                       time.perf_counter() - t0)
+            if Inbetween is not None and ar is not None:
+                t0 = time.perf_counter()
+                out = complete(clean[:prefix], prefix, upto, ar).solve().motion
+                record(f"complete 1 s after 1 s: AR task default ({ar_path.name})",
+                       model_error_mm(prior, out, clean[:upto], after), time.perf_counter() - t0)
         a, b = int(2.0 * clean.fps), int(3.5 * clean.fps)  # 1.5 s gap
         if clean.num_frames < b + int(0.5 * clean.fps):
             continue  # too short to keep half a second after the gap
         seen = np.ones(clean.num_frames, bool)
         seen[a:b] = False
         gap = slice(int(a * prior.spec.fps / clean.fps), int(b * prior.spec.fps / clean.fps))
-        for label, opts in (("latent masked encoder", InversionOptions()),
-                            (f"latent masked + L-BFGS {iters}", InversionOptions(refine_iters=iters))):
+        for label, opts, solved in latent_cases(iters):
             t0 = time.perf_counter()
-            out = infill(prior, clean, seen, opts).motion
+            out = LatentTask(clean, prior, [(0, a), (b, clean.num_frames)], opts,
+                             **({} if solved else {"map_options": None})).solve().motion
             record(f"in-between 1.5 s: {label}", model_error_mm(prior, out, clean, gap), time.perf_counter() - t0)
         if Inbetween is not None and ar is not None:
             t0 = time.perf_counter()
@@ -371,7 +396,8 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
             record(f"in-between 1.5 s: AR task default ({ar_path.name})", model_error_mm(prior, out, clean, gap),
                    time.perf_counter() - t0)
     lines = [f"4. Tasks on the first {seconds:g} s of each held-out clip ({len(clips)} clips): mean joint position "
-             "error against the clean clip (mm; in-betweening: on the gap frames) and seconds per clip",
+             "error against the clean clip (mm; in-betweening: on the gap frames; completion: on the second "
+             "completed) and seconds per clip",
              "   denoising input: rotations turned by N(0, 0.05 rad) per axis, root moved by N(0, 1 cm)",
              "   (in-betweening only on clips of at least 4 s)"]
     lines += format_table(["task and method", "clips", "error mm", "s/clip"],

@@ -104,6 +104,11 @@ ACCELERATION_FLOOR = 2.0
 ACCELERATION_CAP = 14.0
 
 
+#: Sigmas (root m, angle rad) of the fidelity to a kept frame where a synthesised gap meets it.
+JOIN_SIGMA_ROOT = 0.01
+JOIN_SIGMA_ANGLE = 0.02
+
+
 #: Sigma (m/s) of the speed of a foot near the floor that is not planted, and the height
 #: (m) above its planted height within which it counts as near (``SkatingTerm``). In path
 #: following, 0.5 within 3 cm brought held-out walks' foot skating from 1.2-1.9 times the

@@ -14,9 +14,10 @@ from motionopt.objective import PoseFidelityTerm
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 
-from .common import (ACCELERATION_SIGMA, INBETWEEN_SKATING_BAND, INBETWEEN_SKATING_SIGMA, MAX_HUMAN_SPEED,
-                     SKATING_SIGMA, SUPPORT_SIGMA, TaskResult, judged, TermSigmas, clamped_rollout,
-                     model_frames_in, plant_feet, prepare, root_features, run, splice, standard_terms, warned)
+from .common import (ACCELERATION_SIGMA, INBETWEEN_SKATING_BAND, INBETWEEN_SKATING_SIGMA, JOIN_SIGMA_ANGLE,
+                     JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, SKATING_SIGMA, SUPPORT_SIGMA, TaskResult, judged, TermSigmas,
+                     clamped_rollout, model_frames_in, plant_feet, prepare, root_features, run, splice,
+                     standard_terms, warned)
 from .rollout import chosen_rollout
 
 
@@ -83,8 +84,8 @@ class Inbetween:
     keep: list[tuple[int, int]]
     prior: object
     n_frames: int | None = None
-    sigma_join_root: float = 0.01
-    sigma_join_angle: float = 0.02
+    sigma_join_root: float = JOIN_SIGMA_ROOT
+    sigma_join_angle: float = JOIN_SIGMA_ANGLE
     sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(
         smoothness=ACCELERATION_SIGMA, skating=INBETWEEN_SKATING_SIGMA, skating_band=INBETWEEN_SKATING_BAND))
     options: SolverOptions = field(default_factory=SolverOptions)

@@ -420,3 +420,35 @@ def test_latent_density_scores_real_motion_above_a_noisy_copy(prior):
     assert torch.allclose(batched[0], nll.detach(), atol=1e-4)
     with pytest.raises(NotImplementedError, match="autoregressive"):
         density.sample(x[:10], 5)
+
+
+def test_between_blends_starts_the_short_way_round():
+    from motionopt.features import RootStart
+    from problems.latent import between
+
+    a, b = RootStart(3.0, 0.0, 1.0, 0.0), RootStart(-3.0, 2.0, -1.0, 0.1)
+    assert between(a, b, 0.0) == a
+    end = between(a, b, 1.0)
+    assert (end.x, end.z, end.ground) == pytest.approx((2.0, -1.0, 0.1))
+    assert np.cos(end.yaw - b.yaw) == pytest.approx(1.0)
+    mid = between(a, b, 0.5)
+    assert np.cos(mid.yaw - np.pi) == pytest.approx(1.0, abs=1e-3)  # through pi, not through 0
+    assert (mid.x, mid.z) == pytest.approx((1.0, 0.0))
+
+
+def test_latent_inbetweening_solves_the_gap_and_keeps_the_kept_frames(prior):
+    """With the MAP solve (the default) the kept frames are the input's exactly and the
+    gap's objective goes down; without it the output is the inversion's."""
+    from problems.latent import LatentTask
+
+    clip = bvh.load(cmu_clips()[0])
+    a, b = clip.num_frames // 3, clip.num_frames // 2
+    task = LatentTask(clip, prior, [(0, a), (b, clip.num_frames)])
+    result = task.solve()
+    assert np.allclose(result.motion.rotations[:a], clip.rotations[:a])
+    assert np.allclose(result.motion.root[b:], clip.root[b:])
+    assert result.metrics["map_objective"] < result.metrics["map_objective_start"]
+    assert any("MAP solve" in line for line in task.summary(result))
+    plain = LatentTask(clip, prior, [(0, a), (b, clip.num_frames)], map_options=None).solve()
+    assert "map_objective" not in plain.metrics
+    assert not np.allclose(plain.motion.rotations[:a], clip.rotations[:a])
