@@ -270,7 +270,7 @@ def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], mot
     """In-betweening with the latent prior, --after applied as the autoregressive task applies it."""
     problems = _problems()
     ranges, length = problems.inbetween.after_last_range(keep, motion.num_frames, args.after)
-    return problems.latent.LatentTask(motion[:length], prior, ranges)
+    return problems.latent.LatentTask(motion[:length], prior, ranges, problems.latent.gap_inversion_options())
 
 
 CLEAN_FEET = arg("--clean-feet", action="store_true",
@@ -412,7 +412,7 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
-                       "encoder alone)" if method else ""))
+                       "encoder alone; inbetween 200)" if method else ""))
     s.add_argument("--optimizer", default=None, metavar="NAME",
                    help=f"local optimiser: {', '.join(OPTIMIZERS)} (default {SolverOptions.optimizer}); scipy is "
                    "L-BFGS-B, nlopt LD_LBFGS, torch torch.optim.LBFGS, adam a first-order baseline")
