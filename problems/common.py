@@ -15,7 +15,8 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
-from motionopt.objective import ContactTerm, MAPObjective, SkatingTerm, SmoothnessTerm, SupportTerm, Term
+from motionopt.objective import (ContactTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm,
+                                 Term)
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
 from priors.train import ACCELERATION_KEY
@@ -149,6 +150,26 @@ class TermSigmas:
     skating_band: float = SKATING_BAND
     #: m of the lowest foot above the floor (``SupportTerm``); None: no support term
     support: float | None = None
+
+
+def gap_sigmas() -> TermSigmas:
+    """The terms' sigmas of in-betweening's solve: accelerations and feet gliding in the gap."""
+    return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=INBETWEEN_SKATING_SIGMA, skating_band=INBETWEEN_SKATING_BAND)
+
+
+def completion_sigmas() -> TermSigmas:
+    """The terms' sigmas of prefix completion's solve: accelerations, feet gliding within
+    ``SKATING_BAND`` and the lowest foot on the floor (``SUPPORT_SIGMA``)."""
+    return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA, support=SUPPORT_SIGMA)
+
+
+def join_terms(root: np.ndarray, rotations: np.ndarray, join: np.ndarray, sigma_root: float = JOIN_SIGMA_ROOT,
+               sigma_angle: float = JOIN_SIGMA_ANGLE) -> list[Term]:
+    """Fidelity to the kept frames ``join`` (model frames where a synthesised gap meets a
+    kept frame) of the target ``root`` and ``rotations``; none without such a frame."""
+    if not join.any():
+        return []
+    return [PoseFidelityTerm(root, rotations, sigma_root, sigma_angle, mask=join, name="join")]
 
 
 def acceleration_sigmas(prior, scale: float) -> float | list[float]:

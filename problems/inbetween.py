@@ -10,14 +10,12 @@ import torch
 from motionopt import rotations as R
 from motionopt.features import RootStart
 from motionopt.motion import Motion
-from motionopt.objective import PoseFidelityTerm
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 
-from .common import (ACCELERATION_SIGMA, INBETWEEN_SKATING_BAND, INBETWEEN_SKATING_SIGMA, JOIN_SIGMA_ANGLE,
-                     JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, SKATING_SIGMA, SUPPORT_SIGMA, TaskResult, judged, TermSigmas,
-                     clamped_rollout, model_frames_in, plant_feet, prepare, root_features, run, splice,
-                     standard_terms, warned)
+from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
+                     completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
+                     root_features, run, splice, standard_terms, warned)
 from .rollout import chosen_rollout
 
 
@@ -86,8 +84,7 @@ class Inbetween:
     n_frames: int | None = None
     sigma_join_root: float = JOIN_SIGMA_ROOT
     sigma_join_angle: float = JOIN_SIGMA_ANGLE
-    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(
-        smoothness=ACCELERATION_SIGMA, skating=INBETWEEN_SKATING_SIGMA, skating_band=INBETWEEN_SKATING_BAND))
+    sigmas: TermSigmas = field(default_factory=gap_sigmas)
     options: SolverOptions = field(default_factory=SolverOptions)
     refine: bool = True
     clean_feet: bool = False
@@ -138,10 +135,8 @@ class Inbetween:
         join = np.zeros(n, bool)
         join[1:] = kept[1:] & ~kept[:-1]
         if self.refine:
-            root_t, rot_t = prep.model.root[src], prep.model.rotations[src]
-            terms = [PoseFidelityTerm(root_t, rot_t, self.sigma_join_root, self.sigma_join_angle, mask=join,
-                                      name="join")] if join.any() else []
-            terms += standard_terms(prep, prior, self.sigmas)
+            terms = join_terms(prep.model.root[src], prep.model.rotations[src], join, self.sigma_join_root,
+                               self.sigma_join_angle) + standard_terms(prep, prior, self.sigmas)
             result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None))
             x = result.x
         if self.clean_feet:
@@ -290,8 +285,7 @@ def complete(motion: Motion, prefix: int, n_frames: int, prior, **kwargs) -> Inb
     (rollouts chosen a second at a time), 33 (and the skating term: feet floating in 12)
     and 39 (and the support term); MPJPE over the first second 17.3, 19.3, 19.7 and 19.6 cm
     (constant velocity 29.6)."""
-    kwargs.setdefault("sigmas", TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA,
-                                           support=SUPPORT_SIGMA))
+    kwargs.setdefault("sigmas", completion_sigmas())
     if not 0 < prefix <= motion.num_frames:
         raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
     if n_frames <= prefix:

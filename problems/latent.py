@@ -19,7 +19,6 @@ from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_angle
 from motionopt.motion import Motion
-from motionopt.objective import PoseFidelityTerm
 from motionopt.solver import InversionOptions, InversionResult, SolverOptions, blend, invert
 from motionopt.smoothing import local_linear
 from priors.checkpoint import load_prior_of_kind
@@ -27,8 +26,7 @@ from priors.latent import LatentPrior
 from priors.latent_density import LatentDensity
 from priors.semantic import Direction, directions_of, fit_attribute_directions
 
-from .common import (ACCELERATION_SIGMA, INBETWEEN_SKATING_BAND, INBETWEEN_SKATING_SIGMA, JOIN_SIGMA_ANGLE,
-                     JOIN_SIGMA_ROOT, SKATING_SIGMA, SUPPORT_SIGMA, Prepared, TermSigmas, prepare, run, splice,
+from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
                      standard_terms)
 from .inbetween import check_ranges
 
@@ -81,8 +79,8 @@ class LatentTaskResult:
 
 
 def result_of(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
-            metrics: dict | None = None, n_frames: int | None = None,
-            anchor: tuple[Motion, np.ndarray] | None = None, anchor_height: bool = True) -> LatentTaskResult:
+              metrics: dict | None = None, n_frames: int | None = None,
+              anchor: tuple[Motion, np.ndarray] | None = None, anchor_height: bool = True) -> LatentTaskResult:
     """Decode features and put them on the original's skeleton with ``n_frames`` frames at the
     original's rate (default: as many as the features last). ``anchor`` (the input at the
     model rate, its known frames): take the root's slow motion from it (``anchor_root``;
@@ -146,7 +144,7 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: InversionOptions = 
     term = FidelityTerm(prior, prep.x, torch.ones(len(prep.x)), options.position_sigma)
     inv = invert(prior, prep.x, terms=[term], options=options)
     return result_of(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
-                   anchor=(prep.model, np.ones(len(prep.x), bool)))
+                     anchor=(prep.model, np.ones(len(prep.x), bool)))
 
 
 def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOptions = InversionOptions(),
@@ -167,6 +165,13 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     return result_of(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
 
 
+def at_model_rate(seen: np.ndarray, fps: float, model_fps: float, n: int) -> np.ndarray:
+    """``seen`` (one bool per frame at ``fps``) at the ``n`` frames of the prior's rate: each
+    model frame takes the nearest file frame's."""
+    idx = np.minimum(np.round(np.arange(n) * fps / model_fps).astype(int), len(seen) - 1)
+    return seen[idx]
+
+
 def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: InversionOptions = InversionOptions()
            ) -> LatentTaskResult:
     """Fill the frames of ``motion`` where ``seen`` (one bool per file frame) is false with
@@ -176,14 +181,13 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Invers
     if seen.shape != (motion.num_frames,):
         raise ValueError(f"seen must have one entry per frame ({motion.num_frames}), got {seen.shape}")
     prep = prepare(motion, prior)
-    idx = np.minimum(np.round(np.arange(len(prep.x)) * motion.fps / prior.spec.fps).astype(int), len(seen) - 1)
-    mask = torch.from_numpy(seen[idx])
+    mask = torch.from_numpy(at_model_rate(seen, motion.fps, prior.spec.fps, len(prep.x)))
     if not bool(mask.any()):
         raise ValueError("no frame is seen: give at least one known frame")
     term = FidelityTerm(prior, prep.x, mask.float(), options.position_sigma)
     inv = invert(prior, prep.x, mask=mask, terms=[term], options=options)
     return result_of(prior, inv.x, prep.start, motion, inv, n_frames=motion.num_frames,
-                   anchor=(prep.model, mask.numpy()))
+                     anchor=(prep.model, mask.numpy()))
 
 
 def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: LatentTaskResult,
@@ -202,21 +206,14 @@ def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: L
     density = LatentDensity(prior)
     prep = prepare(motion, density)
     n = len(prep.x)
-    kept = np.zeros(n, bool)
-    idx = np.minimum(np.round(np.arange(n) * motion.fps / prior.spec.fps).astype(int), len(seen) - 1)
-    kept[:] = seen[idx]
+    kept = at_model_rate(seen, motion.fps, prior.spec.fps, n)
     x0 = prep.codec.features(filled.model_motion, prep.start.ground)[:n].clone()
     x0[torch.from_numpy(kept)] = prep.x[torch.from_numpy(kept)]
     join = np.zeros(n, bool)
     join[1:] = kept[1:] & ~kept[:-1]
-    if kept[-1]:
-        sigmas = TermSigmas(smoothness=ACCELERATION_SIGMA, skating=INBETWEEN_SKATING_SIGMA,
-                            skating_band=INBETWEEN_SKATING_BAND)
-    else:
-        sigmas = TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA, support=SUPPORT_SIGMA)
-    terms = [PoseFidelityTerm(prep.model.root, prep.model.rotations, JOIN_SIGMA_ROOT, JOIN_SIGMA_ANGLE, mask=join,
-                              name="join")] if join.any() else []
-    result, model = run(density, prep, x0, ~kept, terms + standard_terms(prep, density, sigmas), options)
+    sigmas = gap_sigmas() if kept[-1] else completion_sigmas()
+    terms = join_terms(prep.model.root, prep.model.rotations, join) + standard_terms(prep, density, sigmas)
+    result, model = run(density, prep, x0, ~kept, terms, options)
     out = splice(prep.to_file(model)[:motion.num_frames], motion, seen)
     metrics = {**filled.metrics, "map_objective_start": result.fun_start, "map_objective": result.fun,
                "map_iterations": result.nit}
@@ -318,8 +315,8 @@ def invert_input(prior: LatentPrior, motion: Motion, options: InversionOptions) 
                         options=options)
 
 
-@torch.no_grad()
-def _generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_frames: int) -> Tensor:
+def generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_frames: int) -> Tensor:
+    """The clip (n_frames, D) that W+ codes of ``inv``'s windows generate, blended over the overlaps."""
     return blend(prior.generate(codes), inv.starts, max(n_frames, inv.starts[-1] + prior.window))[:n_frames]
 
 
@@ -367,7 +364,8 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
             xa, xb = resampled(prior, pa.x, n), resampled(prior, pb.x, n)
             inverted[n] = xa, xb, invert(prior, xa, options=options), invert(prior, xb, options=options)
         xa, xb, inv_a, inv_b = inverted[n]
-        x = _generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
+        with torch.no_grad():
+            x = generate_clip(prior, torch.lerp(inv_a.wplus, inv_b.wplus, alpha), inv_a, n)
         frames = int(round((1 - alpha) * a.num_frames + alpha * b.num_frames * a.fps / b.fps))
         start = between(pa.start, pb.start, alpha)
         path = Codec.of(prior).motion(torch.lerp(xa, xb, alpha).double(), start, like=a)
@@ -389,7 +387,8 @@ def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int
     for i in range(count):
         eps = torch.randn(prior.config.w_dim, generator=g) * sigma
         delta = (eps * prior.w_scales) @ prior.w_components
-        x = _generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
+        with torch.no_grad():
+            x = generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
         out.append(result_of(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed},
-                           n_frames=motion.num_frames))
+                             n_frames=motion.num_frames))
     return out

@@ -38,12 +38,12 @@ from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.motion import Motion
 from motionopt.objective import SkatingTerm, SupportTerm, WindowState
-from motionopt.solver import InversionOptions, blend, refine, regulariser
+from motionopt.solver import InversionOptions, refine, regulariser
 from priors.latent import LatentPrior
 from priors.semantic import PACE, edit_codes
 from priors.style import style_classifier_of
 
-from .latent import LatentTaskResult, directions, invert_input, result_of
+from .latent import LatentTaskResult, directions, generate_clip, invert_input, result_of
 
 #: What one unit of strength does, per attribute (``goal_of``). Weakening a crouch stops
 #: at the clip's highest hips: above them the feet left the floor (held-out walks at -2
@@ -218,10 +218,9 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
     t0 = time.perf_counter()
     prep, inv = invert_input(prior, motion, options)
     n = len(prep.x)
-    total = max(n, inv.starts[-1] + prior.window)
 
     def clip(codes: Tensor) -> Tensor:
-        return blend(prior.generate(codes), inv.starts, total)[:n]
+        return generate_clip(prior, codes, inv, n)
 
     codes = edit_codes(inv.wplus, dirs[attribute], strength)
     goal = None
@@ -241,18 +240,18 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
             return e + EDIT_REG_WEIGHT * regulariser(prior, c)
 
         codes, _ = refine(codes, energy, iters)
+    reached = {}
     with torch.no_grad():
         x = clip(codes)
-        reached = {} if goal is None else {"goal_unedited": float(goal.measure(x0).mean()),
-                                           "goal_target": float(target.mean()), "goal_reached": float(goal.measure(x).mean())}
         if goal is not None:
-            reached["goal_summary"] = (f"{goal.unit}: {goal.show(reached['goal_unedited'])} unedited, "
-                                       f"{goal.show(reached['goal_target'])} asked, {goal.show(reached['goal_reached'])} "
-                                       "reached (means over the clip)")
+            unedited, asked, got = (float(v.mean()) for v in (goal.measure(x0), target, goal.measure(x)))
+            reached = {"goal_unedited": unedited, "goal_target": asked, "goal_reached": got,
+                       "goal_summary": f"{goal.unit}: {goal.show(unedited)} unedited, {goal.show(asked)} asked, "
+                                       f"{goal.show(got)} reached (means over the clip)"}
     inv.timings["total"] = time.perf_counter() - t0
     keep_path = attribute != PACE
     metrics = {"attribute": attribute, "strength": strength, "classifier_accuracy": dirs[attribute].accuracy,
                "root_path_kept": keep_path, "unit": goal.unit if goal else "standard deviations of the codes", **reached}
     return result_of(prior, x, prep.start, motion, inv, metrics, n_frames=motion.num_frames,
-                   anchor=(prep.model, np.ones(n, bool)) if keep_path else None, anchor_height=False)
+                     anchor=(prep.model, np.ones(n, bool)) if keep_path else None, anchor_height=False)
 
