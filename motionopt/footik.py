@@ -81,7 +81,7 @@ def _ancestors(parents: np.ndarray, j: int) -> list[int]:
 
 def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarray,
                    planted_height: np.ndarray | None = None, blend_frames: int = 3,
-                   max_stretch: float = 0.98, fill_gaps: int = 2) -> Motion:
+                   max_stretch: float = 0.98, fill_gaps: int = 2, max_rise: float = 0.03) -> Motion:
     """The motion with each leg planted during its contact segments.
 
     Args:
@@ -98,6 +98,8 @@ def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarr
         fill_gaps: breaks of at most this many frames inside a leg's contact are label
             flicker (a pivoting foot passing the speed threshold), not steps: they are
             filled, so the foot stays planted through them. 0 keeps the labels as given.
+        max_rise: how far (m) a planted foot the leg cannot reach may be lifted towards it;
+            further out of reach it slides instead.
 
     A leg is in contact on the frames where any of its contact joints (ankle, toe) is
     labelled. Within a contact segment the whole foot is moved by one translation per
@@ -115,8 +117,9 @@ def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarr
     The hip and knee rotations then bring the ankle to its target by analytic two-bone
     IK, which keeps the knee's hinge axis where it was in the thigh's frame (the pole
     comes from the input knee) and turns the knee only about it. A target out of reach
-    is lifted until the leg reaches it: a foot the leg cannot plant rises, it does not
-    slide. Only the local rotations of hips, knees and ankles change; frames outside the
+    is lifted until the leg reaches it, by at most ``max_rise``: a foot the leg cannot
+    quite plant rises a little; one far out of reach (a contact the motion never made, a
+    body that has walked on) slides towards the hip instead of kicking up. Only the local rotations of hips, knees and ankles change; frames outside the
     segments and their blends keep their input values exactly, and so do the root and the
     other joints. Per-frame joint translations, if any, are used as they are.
     """
@@ -127,6 +130,8 @@ def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarr
         raise ValueError(f"contacts must be (frames, contact joints) = ({n_t}, {n_c}), got {contacts.shape}")
     if blend_frames < 0 or fill_gaps < 0:
         raise ValueError(f"blend_frames and fill_gaps count frames, 0 or more; got {blend_frames} and {fill_gaps}")
+    if max_rise < 0:
+        raise ValueError(f"max_rise is a height in metres, 0 or more; got {max_rise}")
     if not 0 < max_stretch <= 1:
         raise ValueError(f"max_stretch is a fraction of the leg's length in (0, 1], got {max_stretch}")
     legs = find_legs(sk, list(contact_joints))
@@ -154,7 +159,7 @@ def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarr
         if not active.any():
             continue
         f = torch.from_numpy(np.flatnonzero(active))
-        target = _within_reach(hip[f], ankle[f] + torch.from_numpy(delta[active]), longest[f])
+        target = _within_reach(hip[f], ankle[f] + torch.from_numpy(delta[active]), longest[f], max_rise)
         hip_g, knee_g = _two_bone_ik(hip[f], knee[f], ankle[f], target, grot[f, leg.hip], grot[f, leg.knee],
                                      _bend_axis(pos, grot, leg, f), longest[f])
         parent_g = grot[f, int(sk.parents[leg.hip])]
@@ -248,17 +253,21 @@ def _plant(center: np.ndarray, radius: np.ndarray, start: np.ndarray, weight: fl
     return c
 
 
-def _within_reach(hip: Tensor, target: Tensor, longest: Tensor) -> Tensor:
-    """Targets (N, 3) raised as little as needed to lie within ``longest`` of the hip, so
-    that a foot out of reach lifts rather than slides; one further out horizontally than
-    the leg is long goes to hip height in its direction."""
+def _within_reach(hip: Tensor, target: Tensor, longest: Tensor, max_rise: float) -> Tensor:
+    """Targets (N, 3) within ``longest`` of the hip: raised as little as needed, by at most
+    ``max_rise`` metres (a foot a little out of reach lifts rather than slides), and beyond
+    that drawn in horizontally towards the hip (a foot far out of reach slides: lifted all
+    the way, a planted point a stride behind a body that walked on raised the foot to hip
+    height, a kick of 80 cm)."""
     off = target - hip
     flat = off[:, [0, 2]].norm(dim=-1)
-    inside = flat < longest
     low = hip[:, 1] - torch.sqrt((longest ** 2 - flat ** 2).clamp_min(0))
+    y = torch.where(flat < longest, torch.maximum(target[:, 1], low), hip[:, 1])
+    y = torch.minimum(y, target[:, 1] + max_rise)
+    reach = torch.sqrt((longest ** 2 - (y - hip[:, 1]) ** 2).clamp_min(0))
+    scale = torch.minimum(torch.ones_like(flat), reach / flat.clamp_min(1e-12))
     out = target.clone()
-    out[:, 1] = torch.where(inside, torch.maximum(target[:, 1], low), hip[:, 1])
-    scale = torch.where(inside, torch.ones_like(flat), longest / flat.clamp_min(1e-12))
+    out[:, 1] = y
     out[:, 0] = hip[:, 0] + off[:, 0] * scale
     out[:, 2] = hip[:, 2] + off[:, 2] * scale
     return out

@@ -357,6 +357,10 @@ class SupportTerm(FootTerm):
 
     sigma: float = 0.03
     softness: float = 0.01
+    #: Only in frames where some contact joint counts as planted (``WindowState.contacts``:
+    #: the kinematics of the solve's start), so that a run's flight or a dancer on her
+    #: toes is left off the floor.
+    planted_only: bool = False
     name: str = "support"
 
     def __post_init__(self) -> None:
@@ -366,7 +370,10 @@ class SupportTerm(FootTerm):
 
     def energy(self, state: WindowState) -> Tensor:
         lowest = -self.softness * torch.logsumexp(-self.heights(state) / self.softness, dim=-1)
-        return _gaussian(torch.relu(lowest).pow(2), self.sigma).sum(-1)
+        e = _gaussian(torch.relu(lowest).pow(2), self.sigma)
+        if self.planted_only:
+            e = e * (state.contacts > 0.5).any(-1).to(e)
+        return e.sum(-1)
 
 
 @dataclass

@@ -16,7 +16,7 @@ from motionopt.solver import SolverOptions
 from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
-from .rollout import chosen_rollout
+from .rollout import chosen_rollout, lift_limit
 
 
 def parse_ranges(text: str) -> list[tuple[int, int]]:
@@ -203,9 +203,10 @@ class Inbetween:
         if b is None:
             # unplanted: the root keeps the prior's pace (planting slows the gait: 36 against
             # 22 cm MPJPE to the real continuation, bench/tasks.py); clean_feet plants by IK
-            feet = ctx_motion[-1:].positions()[0, prior.spec.contact_indices()]
-            new = chosen_rollout(prior, ctx, start, feet, prep.model.skeleton, prep.planted_height, n - a,
-                                 self.candidates, self.options.temperature_for(prior), gen)
+            feet = ctx_motion.positions()[:, prior.spec.contact_indices()]
+            new = chosen_rollout(prior, ctx, start, feet[-1], prep.model.skeleton, prep.planted_height, n - a,
+                                 self.candidates, self.options.temperature_for(prior), gen,
+                                 max_lift=lift_limit(feet, prep.planted_height))
         else:
             k = b - a + 1
             p0, p1 = root[a - 1, [0, 2]], prep.model.root[b, [0, 2]]

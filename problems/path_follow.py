@@ -22,7 +22,7 @@ from priors.checkpoint import shown
 from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, Prepared, TaskResult, TermSigmas, judged,
                      plant_feet, prepare, read_text, root_features, run, standard_terms,
                      warned)
-from .rollout import chosen_rollout
+from .rollout import chosen_rollout, lift_limit
 
 #: Most seconds of new motion one run makes (a longer path: several runs, each continuing the last).
 MAX_NEW_SECONDS = 600.0
@@ -211,10 +211,12 @@ class PathFollow:
         n = n_seed + n_new
         cidx = prior.spec.contact_indices()
         gen = torch.Generator().manual_seed(self.options.seed)
-        new = chosen_rollout(prior, prep.x, advance(prep.start, prep.raw, prior.spec), prep.model.positions()[-1, cidx],
+        seed_feet = prep.model.positions()[:, cidx]
+        new = chosen_rollout(prior, prep.x, advance(prep.start, prep.raw, prior.spec), seed_feet[-1],
                              prep.model.skeleton, prep.planted_height, n_new, self.candidates,
                              self.options.temperature_for(prior), gen,
-                             torch.from_numpy(self.root_channels(prep, tgt, fps)))
+                             torch.from_numpy(self.root_channels(prep, tgt, fps)),
+                             lift_limit(seed_feet, prep.planted_height))
         x = torch.cat((prep.x, new))
         model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         result = None

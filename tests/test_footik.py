@@ -220,3 +220,17 @@ def test_errors_say_what_to_pass(joints, contacts, error):
     clean = to_model_motion(motion, default_spec(motion.skeleton))
     with pytest.raises((ValueError, KeyError), match=error):
         clean_contacts(clean, joints, contacts)
+
+
+@pytest.mark.parametrize("max_rise", [0.03, 0.0])
+def test_a_foot_far_out_of_reach_slides_instead_of_kicking_up(case, max_rise):
+    """A body that runs on at 3 m/s leaves its planted feet a stride behind: the leg may
+    lift such a foot by ``max_rise`` at most, not up towards the hip."""
+    fast = slide(case.clean, np.array([3.0, 0.0, 0.0]))
+    cleaned = clean_contacts(fast, case.joints, case.contacts, max_rise=max_rise)
+    rise = positions(cleaned)[:, case.idx, 1] - positions(fast)[:, case.idx, 1]
+    below = torch.relu(torch.from_numpy(metrics.rest_heights(positions(fast), case.idx).numpy())
+                       - positions(fast)[:, case.idx, 1])  # the plane lifts a foot below it anyway
+    assert float((rise - below).max()) <= max_rise + 0.005
+    with pytest.raises(ValueError, match="max_rise"):
+        clean_contacts(fast, case.joints, case.contacts, max_rise=-0.01)

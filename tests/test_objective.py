@@ -256,3 +256,10 @@ def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
     assert float(term.energy(state(0.11, 0.11))) == pytest.approx(3 * 2.0, rel=0.05)
     with pytest.raises(ValueError, match="positive sigma"):
         SupportTerm([0], np.zeros(1), sigma=0.0)
+
+    # planted_only: only the frames where the solve's start planted some foot
+    gated = SupportTerm([0, 1], np.array([0.05, 0.05]), sigma=0.03, softness=0.001, planted_only=True)
+    up = state(0.11, 0.11)
+    assert float(gated.energy(up)) == 0.0                          # no foot planted at the start: a flight
+    up.contacts[1, 0] = 1.0                                        # one frame planted its first foot
+    assert float(gated.energy(up)) == pytest.approx(2.0, rel=0.05)

@@ -9,7 +9,7 @@ import torch
 from motionopt import bvh
 from motionopt.features import advance, decode, encode, to_model_motion
 from problems.common import root_features
-from problems.rollout import AIRBORNE_COST, FLOOR_BAND, chosen_rollout, glide_cost
+from problems.rollout import AIRBORNE_COST, FLOOR_BAND, LIFT_COST, chosen_rollout, glide_cost, lift_limit
 
 from priorkit import tiny_prior
 from clips import DATA
@@ -32,6 +32,16 @@ def test_glide_cost_counts_speed_near_the_floor_and_frames_with_no_foot_there():
     assert float(glide_cost(feet([up, up], 1.5), planted, 30)) == pytest.approx(AIRBORNE_COST)   # floating
     batch = torch.stack((feet([0.0, 0.2], 1.5), feet([up, up], 0.0)))
     assert glide_cost(batch, planted, 30).shape == (2,)
+    # a foot kicked above the limit costs LIFT_COST per metre too high, averaged over frames
+    assert float(glide_cost(feet([0.0, 0.2], 0.0), planted, 30, max_lift=0.3)) == 0.0
+    assert float(glide_cost(feet([0.0, 0.8], 0.0), planted, 30, max_lift=0.3)) == pytest.approx(LIFT_COST * 0.5)
+
+
+def test_lift_limit_follows_the_contexts_own_lift():
+    context = np.zeros((10, 2, 3))
+    context[4, 1, 1] = 0.2                     # one step lifts a foot 20 cm above its planted height
+    assert lift_limit(context, np.zeros(2)) == pytest.approx(1.5 * 0.2 + 0.05)
+    assert lift_limit(np.zeros((1, 2, 3)), np.zeros(2)) == pytest.approx(0.05)   # standing still
 
 
 def test_chosen_rollout_keeps_the_clamped_root_across_its_seconds():
