@@ -357,9 +357,11 @@ class SupportTerm(FootTerm):
 
     sigma: float = 0.03
     softness: float = 0.01
+    #: (N,) the global frames the term holds (None: all), e.g. those where the prior
+    #: expects a foot on the floor, so that a run's flight is left in the air.
+    mask: np.ndarray | None = None
     #: Only in frames where some contact joint counts as planted (``WindowState.contacts``:
-    #: the kinematics of the solve's start), so that a run's flight or a dancer on her
-    #: toes is left off the floor.
+    #: the kinematics of the solve's start).
     planted_only: bool = False
     name: str = "support"
 
@@ -373,7 +375,14 @@ class SupportTerm(FootTerm):
         e = _gaussian(torch.relu(lowest).pow(2), self.sigma)
         if self.planted_only:
             e = e * (state.contacts > 0.5).any(-1).to(e)
-        return e.sum(-1)
+        return _masked(e, self.window_tensors(state.frames, e.dtype)["mask"]).sum(-1)
+
+    def active(self, frames: np.ndarray) -> bool:
+        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
+
+    def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
+        m = _frame_mask(frames, self.mask)
+        return {**super()._window_tensors(frames, dtype), "mask": None if m is None else torch.as_tensor(m, dtype=dtype)}
 
 
 @dataclass

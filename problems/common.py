@@ -132,11 +132,17 @@ SUPPORT_SIGMA = 0.005
 #: 0.56/0.56/1.14 at L2P 0.083/0.225/0.407 (37% below SLERP at 30 frames), but CMU dance
 #: skated 1.55 times at 30 frames and its 5-frame L2P rose from 0.042 to 0.049 m: dancers
 #: stand on their toes, off the planted height. So in-betweening holds a foot on the floor
-#: only where the gap's start (its fill) has a planted one (``SupportTerm.planted_only``):
+#: only where the gap's start (its fill) has a planted one (``support_where`` "planted"):
 #: Bandai 0.079/0.225/0.421 (34.7% below SLERP at 30 frames, against 34.0% without it),
-#: skating 0.74/0.75/1.13; the CMU figures unchanged.
+#: skating 0.74/0.75/1.13; the CMU figures unchanged. Where the prior's contact head
+#: expects one ("expected", as completion), 30-frame gaps reached 0.411 (36%) but skated
+#: 1.60 times the mocap's (CMU 1.50).
 INBETWEEN_SKATING_SIGMA = 0.2
 INBETWEEN_SKATING_BAND = 0.015
+
+
+#: Which frames ``SupportTerm`` holds (``TermSigmas.support_where``).
+SUPPORT_WHERE = ("all", "planted", "expected")
 
 
 @dataclass
@@ -153,21 +159,24 @@ class TermSigmas:
     skating_band: float = SKATING_BAND
     #: m of the lowest foot above the floor (``SupportTerm``); None: no support term
     support: float | None = None
-    #: the support term only where the solve's start has a planted foot (``SupportTerm.planted_only``)
-    support_planted_only: bool = False
+    #: the frames the support term holds (``SUPPORT_WHERE``): every one ("all"), those
+    #: where the solve's start plants a foot ("planted") or those where the prior's contact
+    #: head, run over the start, expects one ("expected", ``support_frames``)
+    support_where: str = "all"
 
 
 def gap_sigmas() -> TermSigmas:
     """The terms' sigmas of in-betweening's solve: accelerations, feet gliding in the gap
     and a foot on the floor where the fill plants one."""
     return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=INBETWEEN_SKATING_SIGMA, skating_band=INBETWEEN_SKATING_BAND,
-                      support=SUPPORT_SIGMA, support_planted_only=True)
+                      support=SUPPORT_SIGMA, support_where="planted")
 
 
 def completion_sigmas() -> TermSigmas:
     """The terms' sigmas of prefix completion's solve: accelerations, feet gliding within
     ``SKATING_BAND`` and the lowest foot on the floor (``SUPPORT_SIGMA``)."""
-    return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA, support=SUPPORT_SIGMA)
+    return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA, support=SUPPORT_SIGMA,
+                      support_where="expected")
 
 
 def join_terms(root: np.ndarray, rotations: np.ndarray, join: np.ndarray, sigma_root: float = JOIN_SIGMA_ROOT,
@@ -190,8 +199,20 @@ def acceleration_sigmas(prior, scale: float) -> float | list[float]:
     return [min(max(scale * float(r), ACCELERATION_FLOOR), ACCELERATION_CAP) for r in rms]
 
 
-def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
-    """Contact (and optional smoothness) terms every task adds to its own."""
+def support_frames(prior, start: torch.Tensor) -> np.ndarray:
+    """(T,) the frames of features ``start (T, D)`` on which the prior's contact head
+    expects some foot planted: where ``SupportTerm`` holds a foot on the floor. In a run
+    it leaves the flight phases free; held to the floor there, completed runs slid their
+    feet (held-out Bandai runs: 5 of their 10 completed seconds within the data's range,
+    8 with this gate; gated instead by the start's own kinematics, where a floating
+    rollout plants no foot, feet floated: 2)."""
+    return contact_probabilities(prior, start).max(-1) > 0.5
+
+
+def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tensor | None = None) -> list[Term]:
+    """Contact (and optional smoothness, skating and support) terms every task adds to its
+    own; ``start (T, D)``: the solve's start features, which ``sigmas.support_where``
+    "expected" needs."""
     cidx = prior.spec.contact_indices()
     terms: list[Term] = [ContactTerm(cidx, prep.planted_height, sigmas.contact_speed, sigmas.contact_height)]
     if sigmas.smoothness:
@@ -200,7 +221,13 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas) -> list[Term]:
         terms.append(SkatingTerm(cidx, prep.planted_height, sigmas.skating, sigmas.skating_band,
                                  sigmas.skating_band / 6))
     if sigmas.support:
-        terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support, planted_only=sigmas.support_planted_only))
+        if sigmas.support_where not in SUPPORT_WHERE:
+            raise ValueError(f"support_where must be one of {', '.join(SUPPORT_WHERE)}; got {sigmas.support_where!r}")
+        if sigmas.support_where == "expected" and start is None:
+            raise ValueError("a support term where the prior expects a planted foot needs the solve's start")
+        mask = support_frames(prior, start) if sigmas.support_where == "expected" else None
+        terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support, mask=mask,
+                                 planted_only=sigmas.support_where == "planted"))
     return terms
 
 

@@ -136,7 +136,7 @@ class Inbetween:
         join[1:] = kept[1:] & ~kept[:-1]
         if self.refine:
             terms = join_terms(prep.model.root[src], prep.model.rotations[src], join, self.sigma_join_root,
-                               self.sigma_join_angle) + standard_terms(prep, prior, self.sigmas)
+                               self.sigma_join_angle) + standard_terms(prep, prior, self.sigmas, x)
             result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None))
             x = result.x
         if self.clean_feet:

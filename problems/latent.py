@@ -212,7 +212,7 @@ def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: L
     join = np.zeros(n, bool)
     join[1:] = kept[1:] & ~kept[:-1]
     sigmas = gap_sigmas() if kept[-1] else completion_sigmas()
-    terms = join_terms(prep.model.root, prep.model.rotations, join) + standard_terms(prep, density, sigmas)
+    terms = join_terms(prep.model.root, prep.model.rotations, join) + standard_terms(prep, density, sigmas, x0)
     result, model = run(density, prep, x0, ~kept, terms, options)
     out = splice(prep.to_file(model)[:motion.num_frames], motion, seen)
     metrics = {**filled.metrics, "map_objective_start": result.fun_start, "map_objective": result.fun,

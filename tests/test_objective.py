@@ -263,3 +263,8 @@ def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
     assert float(gated.energy(up)) == 0.0                          # no foot planted at the start: a flight
     up.contacts[1, 0] = 1.0                                        # one frame planted its first foot
     assert float(gated.energy(up)) == pytest.approx(2.0, rel=0.05)
+    # mask: only the global frames it names (the window holds frames 1-3)
+    masked = SupportTerm([0, 1], np.array([0.05, 0.05]), sigma=0.03, softness=0.001,
+                         mask=np.array([True, False, True, False, False]))
+    assert float(masked.energy(state(0.11, 0.11))) == pytest.approx(2.0, rel=0.05)
+    assert not SupportTerm([0], np.zeros(1), mask=np.array([True, False, False])).active(np.arange(1, 3))
