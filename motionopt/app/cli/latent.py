@@ -50,7 +50,7 @@ def register(sub) -> None:
                        "keeping the joints the attribute does not move and the feet planted. Strength units: crouch, "
                        "hips 3 cm lower (a negative strength never raises them above their highest in the clip); "
                        "gral (right-arm lift), the right arm 20 degrees higher; root_speed, speed times 1.2; "
-                       "style:NAME (priors trained on Bandai clips), the style classifier's probability +0.25. "
+                       "style:NAME (priors trained on Bandai clips), the style classifier's probability +0.4. "
                        "`--attribute list` prints the attributes of the prior. --plot draws input over output.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--attribute", required=True, help="attribute name, or 'list'")
