@@ -119,9 +119,10 @@ def clean_contacts(motion: Motion, contact_joints: list[str], contacts: np.ndarr
     comes from the input knee) and turns the knee only about it. A target out of reach
     is lifted until the leg reaches it, by at most ``max_rise``: a foot the leg cannot
     quite plant rises a little; one far out of reach (a contact the motion never made, a
-    body that has walked on) slides towards the hip instead of kicking up. Only the local rotations of hips, knees and ankles change; frames outside the
-    segments and their blends keep their input values exactly, and so do the root and the
-    other joints. Per-frame joint translations, if any, are used as they are.
+    body that has walked on) slides towards the hip instead of kicking up. Only the local
+    rotations of hips, knees and ankles change; frames outside the segments and their
+    blends keep their input values exactly, and so do the root and the other joints.
+    Per-frame joint translations, if any, are used as they are.
     """
     sk = motion.skeleton
     n_t, n_c = motion.num_frames, len(contact_joints)

@@ -164,6 +164,10 @@ class TermSigmas:
     #: head, run over the start, expects one ("expected", ``support_frames``)
     support_where: str = "all"
 
+    def __post_init__(self) -> None:
+        if self.support_where not in SUPPORT_WHERE:
+            raise ValueError(f"support_where must be one of {', '.join(SUPPORT_WHERE)}; got {self.support_where!r}")
+
 
 def gap_sigmas() -> TermSigmas:
     """The terms' sigmas of in-betweening's solve: accelerations, feet gliding in the gap
@@ -213,6 +217,8 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
     """Contact (and optional smoothness, skating and support) terms every task adds to its
     own; ``start (T, D)``: the solve's start features, which ``sigmas.support_where``
     "expected" needs."""
+    if sigmas.support and sigmas.support_where == "expected" and start is None:
+        raise ValueError("a support term where the prior expects a planted foot needs the solve's start")
     cidx = prior.spec.contact_indices()
     terms: list[Term] = [ContactTerm(cidx, prep.planted_height, sigmas.contact_speed, sigmas.contact_height)]
     if sigmas.smoothness:
@@ -221,10 +227,6 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
         terms.append(SkatingTerm(cidx, prep.planted_height, sigmas.skating, sigmas.skating_band,
                                  sigmas.skating_band / 6))
     if sigmas.support:
-        if sigmas.support_where not in SUPPORT_WHERE:
-            raise ValueError(f"support_where must be one of {', '.join(SUPPORT_WHERE)}; got {sigmas.support_where!r}")
-        if sigmas.support_where == "expected" and start is None:
-            raise ValueError("a support term where the prior expects a planted foot needs the solve's start")
         mask = support_frames(prior, start) if sigmas.support_where == "expected" else None
         terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support, mask=mask,
                                  planted_only=sigmas.support_where == "planted"))

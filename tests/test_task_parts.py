@@ -12,7 +12,7 @@ from motionopt import rotations as R
 from motionopt.features import decode, encode, to_model_motion
 from motionopt.metrics import l2p, l2q, npss
 from motionopt.smoothing import butterworth, constant, denoising_family, least_risk, savitzky_golay
-from problems.common import clamped_rollout, root_features
+from problems.common import TermSigmas, clamped_rollout, root_features, standard_terms
 from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
 from problems.inbetween import velocity_handoff
@@ -288,3 +288,10 @@ def test_denoising_a_120_fps_capture_ends_nearer_the_clean_one_than_its_filter()
         return float(np.linalg.norm(m.positions() - clean.positions(), axis=-1).mean())
 
     assert err(ours.motion) < 0.99 * err(filtered.motion) < 0.5 * err(noisy)   # plain resampling: 1.45 times
+
+
+def test_the_support_terms_frames_are_named_and_checked():
+    with pytest.raises(ValueError, match="support_where must be one of all, planted, expected"):
+        TermSigmas(support=0.005, support_where="floor")
+    with pytest.raises(ValueError, match="needs the solve's start"):
+        standard_terms(None, tiny_prior(), TermSigmas(support=0.005, support_where="expected"))
