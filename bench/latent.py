@@ -387,8 +387,8 @@ def tasks(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
         gap = slice(int(a * prior.spec.fps / clean.fps), int(b * prior.spec.fps / clean.fps))
         for label, opts, solved in latent_cases(iters):
             t0 = time.perf_counter()
-            out = LatentTask(clean, prior, [(0, a), (b, clean.num_frames)], opts,
-                             **({} if solved else {"map_options": None})).solve().motion
+            task = LatentTask(clean, prior, [(0, a), (b, clean.num_frames)], opts)
+            out = (task if solved else replace(task, map_options=None)).solve().motion
             record(f"in-between 1.5 s: {label}", model_error_mm(prior, out, clean, gap), time.perf_counter() - t0)
         if Inbetween is not None and ar is not None:
             t0 = time.perf_counter()

@@ -74,12 +74,14 @@ SPEED_WINDOW = 16
 @dataclass
 class EditGoal:
     """An attribute's edit in user terms: ``measure`` maps the generated clip's normalised
-    features (T, D) to values (K,) (per frame or per window); strength s asks for
+    features (T, D) and its joint positions (T, J, 3) (``Codec.positions``, decoded once
+    per evaluation for the goal and the feet alike) to values (K,) (per frame or per
+    window); strength s asks for
     ``target(unedited measure, s)`` within ``sigma``; ``free`` names the joints whose
     rotations may change (None: all of them)."""
 
     unit: str
-    measure: Callable[[Tensor], Tensor]
+    measure: Callable[[Tensor, Tensor], Tensor]
     target: Callable[[Tensor, float], Tensor]
     sigma: float
     free: set[str] | None = None
@@ -98,16 +100,6 @@ def leg_joints(prior: LatentPrior) -> set[str]:
     return out
 
 
-def descendants(prior: LatentPrior, joint: int) -> set[str]:
-    """``joint`` and every joint below it, by name."""
-    names, parents = prior.skeleton.names, prior.skeleton.parents
-    out = {joint}
-    for j in range(len(names)):
-        if int(parents[j]) in out:
-            out.add(j)
-    return {names[j] for j in out}
-
-
 def goal_of(prior: LatentPrior, attribute: str) -> EditGoal:
     """The edit goal of ``attribute`` (gral, root_speed, crouch or style:NAME)."""
     codec = Codec.of(prior)
@@ -116,23 +108,23 @@ def goal_of(prior: LatentPrior, attribute: str) -> EditGoal:
     if attribute == "crouch":
         h = s["root_height"].start
         return EditGoal(f"hips {CROUCH_M_PER_UNIT * 100:g} cm lower per unit (never above their highest in the clip)",
-                        lambda x: codec.raw(x)[:, h], lambda m0, k: (m0 - CROUCH_M_PER_UNIT * k).clamp(max=m0.max()),
+                        lambda x, p: codec.raw(x)[:, h], lambda m0, k: (m0 - CROUCH_M_PER_UNIT * k).clamp(max=m0.max()),
                         0.01, leg_joints(prior), lambda v: f"hips {100 * v:.1f} cm high")
     if attribute == "gral":
         shoulder, elbow, wrist = A.right_arm(prior.skeleton.names, prior.skeleton.parents)
 
-        def lift(x: Tensor) -> Tensor:
-            p = codec.positions(x)
+        def lift(x: Tensor, p: Tensor) -> Tensor:
             return (A.angle_from_down(p[:, elbow] - p[:, shoulder]) + A.angle_from_down(p[:, wrist] - p[:, elbow])) / 2
 
         step = math.radians(ARM_DEGREES_PER_UNIT)
         return EditGoal(f"right arm raised {ARM_DEGREES_PER_UNIT:g} degrees per unit", lift,
                         lambda m0, k: (m0 + step * k).clamp(0.0, math.pi), math.radians(3.0),
-                        descendants(prior, shoulder), lambda v: f"right arm {math.degrees(v):.0f} degrees from down")
+                        {prior.skeleton.names[j] for j in (shoulder, *prior.skeleton.descendants(shoulder))},
+                        lambda v: f"right arm {math.degrees(v):.0f} degrees from down")
     if attribute == PACE:
         d = s["root_delta"]
 
-        def speed(x: Tensor) -> Tensor:
+        def speed(x: Tensor, p: Tensor) -> Tensor:
             v = codec.raw(x)[:, d].norm(dim=-1) * fps
             n = max(len(v) // SPEED_WINDOW, 1)
             return v[:n * SPEED_WINDOW].reshape(n, -1).mean(-1) if len(v) >= SPEED_WINDOW else v.mean()[None]
@@ -147,7 +139,7 @@ def goal_of(prior: LatentPrior, attribute: str) -> EditGoal:
         j = classifier.styles.index(style)
         w = prior.window
 
-        def log_probability(x: Tensor) -> Tensor:
+        def log_probability(x: Tensor, p: Tensor) -> Tensor:
             x = as_decoded(codec, x)
             starts = list(range(0, max(len(x) - w, 0) + 1, w // 2))
             win = torch.stack([x[a:a + w] for a in starts]) if len(x) >= w else x[None]
@@ -179,21 +171,19 @@ def as_decoded(codec: Codec, x: Tensor) -> Tensor:
     return codec.normalizer.normalize(raw)
 
 
-def feet_term(prior: LatentPrior, x0: Tensor) -> Callable[[Tensor], Tensor]:
+def feet_term(prior: LatentPrior, p0: Tensor) -> Callable[[Tensor, Tensor], Tensor]:
     """Mean energy per frame of the path-following ``SkatingTerm`` and completion's
     ``SupportTerm`` (sigmas ``EDIT_SKATING_SIGMA``, ``EDIT_SUPPORT_SIGMA``) on a generated
-    clip's features (T, D), with the contact joints' planted heights those of the unedited
-    clip ``x0`` (5th percentile): an edit that speeds the root up or lowers the hips must
-    move the feet with it, not slide them or lift them clear of the floor."""
-    codec = Codec.of(prior)
+    clip's features (T, D) and joint positions (T, J, 3), with the contact joints' planted
+    heights those of the unedited clip's positions ``p0`` (5th percentile): an edit that
+    speeds the root up or lowers the hips must move the feet with it, not slide them or
+    lift them clear of the floor."""
     cidx = prior.spec.contact_indices()
-    with torch.no_grad():
-        planted = torch.quantile(codec.positions(x0)[:, cidx, 1].double(), 0.05, dim=0).numpy()
+    planted = torch.quantile(p0[:, cidx, 1].detach().double(), 0.05, dim=0).numpy()
     terms = [SkatingTerm(cidx, planted, sigma_speed=EDIT_SKATING_SIGMA), SupportTerm(cidx, planted, sigma=EDIT_SUPPORT_SIGMA)]
     fps = prior.spec.fps
 
-    def energy(x: Tensor) -> Tensor:
-        p = codec.positions(x)
+    def energy(x: Tensor, p: Tensor) -> Tensor:
         state = WindowState(np.arange(len(x)), 0, x, p.new_zeros(0), p[:, 0], p, p.new_zeros(0), p.new_zeros(0), fps)
         return sum(t.energy(state) for t in terms) / len(x)
 
@@ -222,23 +212,27 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
     t0 = time.perf_counter()
     prep, inv = invert_input(prior, motion, options)
     n = len(prep.x)
+    codec = Codec.of(prior)
 
-    def clip(codes: Tensor) -> Tensor:
-        return generate_clip(prior, codes, inv, n)
+    def clip(codes: Tensor) -> tuple[Tensor, Tensor]:
+        """The generated clip's features and joint positions."""
+        x = generate_clip(prior, codes, inv, n)
+        return x, codec.positions(x)
 
     codes = edit_codes(inv.wplus, dirs[attribute], strength)
     goal = None
     if iters and strength:
         goal = goal_of(prior, attribute)
         with torch.no_grad():
-            x0 = clip(inv.wplus)
-            target = goal.target(goal.measure(x0), strength)
+            x0, p0 = clip(inv.wplus)
+            m0 = goal.measure(x0, p0)
+            target = goal.target(m0, strength)
         keep = kept_dims(prior, goal.free)
-        feet = feet_term(prior, x0)
+        feet = feet_term(prior, p0)
 
         def energy(c: Tensor) -> Tensor:
-            x = clip(c)
-            e = ((goal.measure(x) - target) / goal.sigma).pow(2).mean() + feet(x)
+            x, p = clip(c)
+            e = ((goal.measure(x, p) - target) / goal.sigma).pow(2).mean() + feet(x, p)
             if len(keep):
                 e = e + KEEP_WEIGHT * (x[:, keep] - x0[:, keep]).pow(2).mean()
             return e + EDIT_REG_WEIGHT * regulariser(prior, c)
@@ -246,9 +240,9 @@ def latent_edit(prior: LatentPrior, motion: Motion, attribute: str, strength: fl
         codes, _ = refine(codes, energy, iters)
     reached = {}
     with torch.no_grad():
-        x = clip(codes)
+        x, p = clip(codes)
         if goal is not None:
-            unedited, asked, got = (float(v.mean()) for v in (goal.measure(x0), target, goal.measure(x)))
+            unedited, asked, got = (float(v.mean()) for v in (m0, target, goal.measure(x, p)))
             reached = {"goal_unedited": unedited, "goal_target": asked, "goal_reached": got,
                        "goal_summary": f"{goal.unit}: {goal.show(unedited)} unedited, {goal.show(asked)} asked, "
                                        f"{goal.show(got)} reached (means over the clip)"}
