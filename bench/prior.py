@@ -58,6 +58,7 @@ from motionopt.features import advance
 from motionopt.noise import position_noise
 from motionopt.table import format_table
 from motionopt.motion import Motion
+from motionopt.prior import gaussian_nll
 from priors.checkpoint import load_prior, shipped_checkpoints
 from priors.heldout import Clip, data_folder, held_out_clips
 from priors.score import copy_verdicts
@@ -67,7 +68,6 @@ from problems.rollout import chosen_rollout, lift_limit
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "prior.txt"
-_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 # ---- likelihood -----------------------------------------------------------------------
@@ -93,8 +93,7 @@ class ConstantVelocityGaussian:
 
     def nll(self, x: Tensor) -> Tensor:
         """NLL of frames 2.. of ``x (T, D)`` per pose dimension, shape (T-2, P)."""
-        z = (self.residual(x, len(self.mean)) - self.mean) / self.std
-        return 0.5 * z * z + torch.log(self.std) + _HALF_LOG_2PI
+        return gaussian_nll(self.residual(x, len(self.mean)), self.mean, torch.log(self.std))
 
 
 @torch.no_grad()
@@ -102,8 +101,7 @@ def prior_nll(prior, x: Tensor) -> Tensor:
     """NLL of frames 2.. of ``x`` per pose dimension, (T-2, P); frame 0 is the context,
     frame 1 is left out to match the baseline."""
     mean, log_std, _ = prior.gaussian(x[1:], context=x[:1])
-    z = (x[1:, :prior.spec.pose_dim] - mean) * torch.exp(-log_std)
-    return (0.5 * z * z + log_std + _HALF_LOG_2PI)[1:]
+    return gaussian_nll(x[1:, :prior.spec.pose_dim], mean, log_std)[1:]
 
 
 def without_worst_second(nll: Tensor, frames: int) -> Tensor:

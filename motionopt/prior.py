@@ -6,6 +6,7 @@ per-frame vectors of ``motionopt.features`` (``spec`` and ``normalizer`` say how
 """
 from __future__ import annotations
 
+import math
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -14,6 +15,27 @@ from torch import Tensor
 from .dataset import Normalizer
 from .features import FeatureSpec
 from .skeleton import Skeleton
+
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+def gaussian_nll(x: Tensor, mean: Tensor, log_std: Tensor, mask: Tensor | None = None) -> Tensor:
+    """-log N(x; mean, exp(log_std)^2) per dimension (broadcast shape), the one Gaussian
+    score of every prior and baseline. ``mask`` (0/1, broadcast) zeroes dimensions left out
+    of the likelihood before squaring, so that a far-off value there gives 0, not inf * 0."""
+    z = (x - mean) * torch.exp(-log_std)
+    norm = log_std + _HALF_LOG_2PI
+    if mask is not None:
+        z, norm = z * mask, norm * mask
+    return 0.5 * z * z + norm
+
+
+def scoring_log_std(predicted: Tensor, log_std: Tensor | None = None,
+                    min_log_std: float | Tensor | None = None) -> Tensor:
+    """The log-std a frame is scored with (``MotionPrior.nll_and_contacts``): ``log_std``
+    where the caller holds it, else the predicted one; floored at ``min_log_std``."""
+    out = predicted if log_std is None else log_std.to(predicted)
+    return out if min_log_std is None else torch.maximum(out, torch.as_tensor(min_log_std).to(out))
 
 
 @runtime_checkable

@@ -29,12 +29,11 @@ from torch import Tensor, nn
 from motionopt import rotations as R
 from motionopt.dataset import Normalizer
 from motionopt.features import FeatureSpec, contact_heights, planted_root_step
+from motionopt.prior import gaussian_nll, scoring_log_std
 from motionopt.skeleton import Skeleton
 
 from .degrade import degraded_batch
 from .temperature import DEFAULT_TEMPERATURE
-
-_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 @dataclass(frozen=True)
@@ -342,16 +341,11 @@ class CCNetPrior(nn.Module):
     def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, min_log_std: float | Tensor | None = None,
                          log_std: Tensor | None = None) -> tuple[Tensor, Tensor]:
         mean, predicted, logits = self.gaussian(x, context)
-        if log_std is None:
-            log_std = predicted
-        if min_log_std is not None:
-            log_std = log_std.clamp_min(min_log_std)
-        return self._gaussian_nll(x, mean, log_std), torch.sigmoid(logits)
+        return self._gaussian_nll(x, mean, scoring_log_std(predicted, log_std, min_log_std)), torch.sigmoid(logits)
 
     def _gaussian_nll(self, x: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
         """Per-frame NLL of the pose part of ``x`` over the moving dimensions."""
-        z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-log_std) * self.moving  # zero before squaring
-        return (0.5 * z * z + (log_std + _HALF_LOG_2PI) * self.moving).sum(-1)
+        return gaussian_nll(x[..., :self.spec.pose_dim], mean, log_std, self.moving).sum(-1)
 
     def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         return self.nll_and_contacts(x, context)[0]

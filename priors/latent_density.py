@@ -22,6 +22,7 @@ import math
 import torch
 from torch import Tensor
 
+from motionopt.prior import gaussian_nll, scoring_log_std
 from motionopt.solver import blend, clip_window_starts
 
 from .latent import LatentPrior
@@ -36,7 +37,6 @@ from .latent import LatentPrior
 TAU = 1.0
 #: Frames of context the reconstruction sees before a window's frames.
 CONTEXT = 16
-_LOG_2PI = math.log(2 * math.pi)
 
 
 class LatentDensity:
@@ -77,14 +77,9 @@ class LatentDensity:
 
     def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, min_log_std: float | Tensor | None = None,
                          log_std: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        mean, ls, logits = self.gaussian(x, context)
-        if log_std is not None:
-            ls = log_std.to(mean)
-        if min_log_std is not None:
-            ls = torch.maximum(ls, torch.as_tensor(min_log_std, dtype=ls.dtype))
-        z = (x[..., :self.spec.pose_dim] - mean) * torch.exp(-ls)
-        nll = (0.5 * z.pow(2) + ls + 0.5 * _LOG_2PI).sum(-1)
-        return nll, torch.sigmoid(logits).detach()
+        mean, predicted, logits = self.gaussian(x, context)
+        ls = scoring_log_std(predicted, log_std, min_log_std)
+        return gaussian_nll(x[..., :self.spec.pose_dim], mean, ls).sum(-1), torch.sigmoid(logits).detach()
 
     def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         return self.nll_and_contacts(x, context)[0]
