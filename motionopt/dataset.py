@@ -114,10 +114,16 @@ def default_validation(files: list[Path], root: Path, every: int = 10) -> list[s
     return names[every - 1::every]
 
 
+#: Suffix of the name of a training clip's mirror image (``build_dataset(mirror=True)``).
+MIRRORED = " (mirrored)"
+#: Largest rest-offset asymmetry (m) of a skeleton whose clips may be mirrored: CMU's is 5 mm.
+MIRROR_TOLERANCE = 0.01
+
+
 def build_dataset(folder: str | Path, spec: FeatureSpec | None = None, fps: float = 30.0,
                   val: list[str] | None = None, unit: str = "auto",
                   fps_overrides: dict[str, float] | None = None,
-                  include: list[str] | None = None) -> MotionDataset:
+                  include: list[str] | None = None, mirror: bool = False) -> MotionDataset:
     """Load every BVH under ``folder``, convert to the spec's joints and frame rate, encode.
 
     Args:
@@ -125,6 +131,9 @@ def build_dataset(folder: str | Path, spec: FeatureSpec | None = None, fps: floa
         val: clip names (relative paths, shell patterns allowed) to hold out.
         fps_overrides: frame rates for clips whose header is wrong, by relative-path pattern.
         include: only clips whose relative path matches one of these patterns.
+        mirror: also train on each training clip's left/right mirror image (named with
+            ``MIRRORED``), twice the data for a small dataset; held-out clips are not
+            mirrored. The skeleton must be symmetric (``Skeleton.mirror_asymmetry``).
     """
     t0 = time.perf_counter()
     root = Path(folder)
@@ -149,10 +158,19 @@ def build_dataset(folder: str | Path, spec: FeatureSpec | None = None, fps: floa
             raise ValueError(f"{f}: {e}") from None
         if skeleton is None:
             skeleton = model.skeleton
+            if mirror and skeleton.mirror_asymmetry() > MIRROR_TOLERANCE:
+                raise ValueError(f"{f}: cannot mirror this skeleton's clips: the rest offsets of left and right "
+                                 f"joints differ by up to {100 * skeleton.mirror_asymmetry():.0f} cm (its joints' "
+                                 "local axes are not the body's); train without --mirror")
         if len(model) < 2:
             log.warning("%s: skipped, shorter than two frames at %g fps", f, spec.fps)
             continue
         x, _ = encode(model, spec)
-        (held if any(fnmatch.fnmatch(name, p) for p in val_patterns) else train)[name] = x
+        if any(fnmatch.fnmatch(name, p) for p in val_patterns):
+            held[name] = x
+            continue
+        train[name] = x
+        if mirror:
+            train[name + MIRRORED] = encode(model.mirror(), spec)[0]
     assert spec is not None and skeleton is not None
     return MotionDataset(spec, skeleton, train, held, source=str(root), seconds_to_build=time.perf_counter() - t0)

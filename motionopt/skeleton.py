@@ -115,6 +115,14 @@ class Skeleton:
                 out[j] = self.names.index(other)
         return out
 
+    def mirror_asymmetry(self) -> float:
+        """Largest distance between a joint's rest offset and its counterpart's mirrored
+        across x = 0 (``mirror_map``), in the skeleton's units: 0 for a symmetric skeleton,
+        whose ``Motion.mirror`` is exactly the mirror image. Skeletons whose joints' local
+        axes are not the body's (Bandai's) have offsets that differ by tens of centimetres."""
+        off = np.asarray(self.offsets, dtype=np.float64)
+        return float(np.abs(off[self.mirror_map()] * np.array([-1.0, 1.0, 1.0]) - off).max())
+
 
 _MIRROR_RULES = [
     (re.compile(r"Left"), "Right"), (re.compile(r"Right"), "Left"),

@@ -230,7 +230,7 @@ class PathFollow:
             full_targets[n_seed:] = tgt
             terms = [PathTerm(self.path, self.sigma_path, mask=joined, name="path"),
                      PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=free, name="path_timing")]
-            terms += standard_terms(prep, prior, self.sigmas)
+            terms += standard_terms(prep, prior, self.sigmas, x)
             result, _ = run(prior, prep, x, free, terms, replace(self.options, pso=None))
             x = result.x
             model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))

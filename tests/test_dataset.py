@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from motionopt.dataset import Normalizer, build_dataset, default_validation, find_bvh
-from clips import CMU_60, CMU_120, DATA
+from motionopt.dataset import MIRRORED, Normalizer, build_dataset, default_validation, find_bvh
+from clips import BANDAI_30, CMU_60, CMU_120, DATA
 
 #: Each clip in a sub-folder of its own, as in ../shared/data/cmu.
 FOLDERS = {CMU_120: "f120", CMU_60: "f60"}
@@ -90,3 +90,26 @@ def test_bad_folders_are_refused(folder, tmp_path):
         build_dataset(folder, val=["*"])
     with pytest.raises(ValueError, match=f"{CMU_120}: .* does not match"):
         build_dataset(DATA)  # two skeletons in one folder: CMU clips do not fit the spec of the Bandai one
+
+
+def test_mirror_adds_each_training_clip_reflected(folder, dataset):
+    ds = build_dataset(folder, val=["f60/*"], mirror=True)
+    assert list(ds.train) == [A, A + MIRRORED] and list(ds.val) == [B]
+    x, m = ds.train[A], ds.train[A + MIRRORED]
+    s = ds.spec.slices()
+    assert torch.equal(x, dataset.train[A])
+    # turning left becomes turning right; the hips keep their height; left and right feet swap
+    torch.testing.assert_close(m[:, s["yaw_delta"]], -x[:, s["yaw_delta"]])
+    torch.testing.assert_close(m[:, s["root_height"]], x[:, s["root_height"]])
+    torch.testing.assert_close(m[:, s["root_delta"]][:, 0], -x[:, s["root_delta"]][:, 0])
+    names, other = ds.skeleton.names, ds.skeleton.mirror_map()
+    feet = list(ds.spec.contact_joints)
+    swapped = [feet.index(names[other[names.index(n)]]) for n in feet]
+    assert swapped != list(range(len(feet)))
+    torch.testing.assert_close(m[:, s["contacts"]], x[:, s["contacts"]][:, swapped])
+
+
+def test_mirror_refuses_an_asymmetric_skeleton(tmp_path):
+    shutil.copy(DATA / BANDAI_30, tmp_path / BANDAI_30)
+    with pytest.raises(ValueError, match=f"{BANDAI_30}: cannot mirror .* differ by up to"):
+        build_dataset(tmp_path, val=[], mirror=True)

@@ -118,6 +118,9 @@ def add_training_data_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--include", nargs="*", default=None, help="train only on clips matching these patterns")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate the prior models (default 30)")
     p.add_argument("--unit", default="auto", help="length unit of the files: cm, m, mm, in or auto")
+    p.add_argument("--mirror", action="store_true",
+                   help="also train on each training clip's left/right mirror image (twice the data; the skeleton "
+                   "must be symmetric, as CMU's is)")
 
 
 def add_training_run_args(p: argparse.ArgumentParser) -> None:
@@ -133,7 +136,8 @@ def training_dataset(args: argparse.Namespace):
     """The dataset the training options name, with a one-line summary unless --quiet."""
     from motionopt.dataset import build_dataset
 
-    ds = build_dataset(args.data, fps=args.fps, val=args.val, unit=args.unit, include=args.include)
+    ds = build_dataset(args.data, fps=args.fps, val=args.val, unit=args.unit, include=args.include,
+                       mirror=args.mirror)
     if not args.quiet:
         print(f"{len(ds.train)} training clips ({ds.num_train_frames} frames at {ds.spec.fps:g} fps), "
               f"{len(ds.val)} held out; prepared in {ds.seconds_to_build:.1f} s")
