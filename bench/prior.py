@@ -52,7 +52,7 @@ import torch
 from torch import Tensor
 
 from motionopt import metrics
-from motionopt.dataset import build_dataset
+from motionopt.dataset import MIRRORED, build_dataset
 from motionopt.codec import Codec
 from motionopt.features import advance
 from motionopt.noise import position_noise
@@ -354,7 +354,10 @@ def bench_checkpoint(path: Path, seconds: float, seeds: int, temperatures: list[
     meta = prior.metadata
     folder = data_folder(meta)
     t0 = time.perf_counter()
-    train = build_dataset(folder, spec=prior.spec, val=[], include=meta["train_clips"])
+    # the clips the prior was trained on, with their mirror images if it was (``build_dataset``)
+    mirrored = any(name.endswith(MIRRORED) for name in meta["train_clips"])
+    train = build_dataset(folder, spec=prior.spec, val=[], mirror=mirrored,
+                          include=[name for name in meta["train_clips"] if not name.endswith(MIRRORED)])
     floor = torch.exp(prior.log_std_floor.clamp_min(prior.config.log_std_min))
     baseline = ConstantVelocityGaussian.fit([prior.normalizer.normalize(x).float() for x in train.train.values()],
                                             prior.spec.pose_dim, floor)
