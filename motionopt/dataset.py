@@ -158,9 +158,10 @@ def build_dataset(folder: str | Path, spec: FeatureSpec | None = None, fps: floa
             raise ValueError(f"{f}: {e}") from None
         if skeleton is None:
             skeleton = model.skeleton
-            if mirror and skeleton.mirror_asymmetry() > MIRROR_TOLERANCE:
+            asymmetry = skeleton.mirror_asymmetry() if mirror else 0.0
+            if asymmetry > MIRROR_TOLERANCE:
                 raise ValueError(f"{f}: cannot mirror this skeleton's clips: the rest offsets of left and right "
-                                 f"joints differ by up to {100 * skeleton.mirror_asymmetry():.0f} cm (its joints' "
+                                 f"joints differ by up to {100 * asymmetry:.0f} cm (its joints' "
                                  "local axes are not the body's); train without --mirror")
         if len(model) < 2:
             log.warning("%s: skipped, shorter than two frames at %g fps", f, spec.fps)

@@ -97,6 +97,20 @@ def _masked(e: Tensor, mask: Tensor | None) -> Tensor:
     return e if mask is None else e * mask
 
 
+class FrameMasked:
+    """Mixin of terms held to the global frames of their ``mask`` (N,) field (None: every
+    frame): inactive in a window with none of them; ``_mask_tensor`` is a window's share."""
+
+    mask: np.ndarray | None
+
+    def active(self, frames: np.ndarray) -> bool:
+        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
+
+    def _mask_tensor(self, frames: np.ndarray, dtype: torch.dtype) -> Tensor | None:
+        m = _frame_mask(frames, self.mask)
+        return None if m is None else torch.as_tensor(m, dtype=dtype)
+
+
 def matrix_angle_sq(a: Tensor, b: Tensor) -> Tensor:
     """Smooth squared geodesic angle (radians^2) between rotation matrices (..., 3, 3):
     ||A - B||_F^2 / 2 = 2 (1 - cos angle), exact to second order and free of arccos's
@@ -116,7 +130,7 @@ class PriorTerm(Term):
 
 
 @dataclass
-class PathTerm(Term):
+class PathTerm(FrameMasked, Term):
     """Root on the ground plane close to a polyline path.
 
     With ``targets`` (N, 2) per global frame (timed mode) each frame is pulled to its own
@@ -135,13 +149,8 @@ class PathTerm(Term):
         if self.path.ndim != 2 or self.path.shape[1] != 2 or len(self.path) < 2:
             raise ValueError(f"a path needs at least 2 points of (x, z); got shape {self.path.shape}")
 
-    def active(self, frames: np.ndarray) -> bool:
-        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
-
     def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
-        m = _frame_mask(frames, self.mask)
-        out = {"path": torch.as_tensor(self.path, dtype=dtype),
-               "mask": None if m is None else torch.as_tensor(m, dtype=dtype)}
+        out = {"path": torch.as_tensor(self.path, dtype=dtype), "mask": self._mask_tensor(frames, dtype)}
         if self.targets is not None:
             out["target"] = torch.as_tensor(self.targets[np.minimum(frames, len(self.targets) - 1)], dtype=dtype)
         return out
@@ -175,7 +184,7 @@ def nearest_on_polyline_sq(points: Tensor, path: Tensor) -> Tensor:
 
 
 @dataclass
-class PoseFidelityTerm(Term):
+class PoseFidelityTerm(FrameMasked, Term):
     """Root position and local joint rotations close to a target motion.
 
     ``root`` (N, 3) and ``rotations`` (N, J, 4) quaternions are targets per global frame
@@ -196,14 +205,10 @@ class PoseFidelityTerm(Term):
         if self.root is None and self.rotations is None:
             raise ValueError("a fidelity term needs root or rotation targets (or both)")
 
-    def active(self, frames: np.ndarray) -> bool:
-        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
-
     def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
         n = len(self.root) if self.root is not None else len(self.rotations)
         idx = np.minimum(frames, n - 1)
-        m = _frame_mask(frames, self.mask)
-        out = {"mask": None if m is None else torch.as_tensor(m, dtype=dtype), "root": None, "rot": None}
+        out = {"mask": self._mask_tensor(frames, dtype), "root": None, "rot": None}
         if self.root is not None:
             out["root"] = torch.as_tensor(np.asarray(self.root)[idx], dtype=dtype)
         if self.rotations is not None:
@@ -349,7 +354,7 @@ class SkatingTerm(FootTerm):
 
 
 @dataclass
-class SupportTerm(FootTerm):
+class SupportTerm(FrameMasked, FootTerm):
     """Some foot stands on the floor: the height above its planted height of the lowest
     contact joint (a soft minimum over ``joints``, ``softness`` metres), where positive,
     with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a body whose root is free
@@ -377,12 +382,8 @@ class SupportTerm(FootTerm):
             e = e * (state.contacts > 0.5).any(-1).to(e)
         return _masked(e, self.window_tensors(state.frames, e.dtype)["mask"]).sum(-1)
 
-    def active(self, frames: np.ndarray) -> bool:
-        return self.mask is None or bool(_frame_mask(frames, self.mask).any())
-
     def _window_tensors(self, frames: np.ndarray, dtype: torch.dtype) -> dict:
-        m = _frame_mask(frames, self.mask)
-        return {**super()._window_tensors(frames, dtype), "mask": None if m is None else torch.as_tensor(m, dtype=dtype)}
+        return {**super()._window_tensors(frames, dtype), "mask": self._mask_tensor(frames, dtype)}
 
 
 @dataclass
