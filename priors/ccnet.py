@@ -33,6 +33,7 @@ from motionopt.prior import gaussian_nll, scoring_log_std
 from motionopt.skeleton import Skeleton
 
 from .degrade import degraded_batch
+from .stacked import StackedWeights, architecture, blocks, encode, stack_weights
 from .temperature import DEFAULT_TEMPERATURE
 
 
@@ -116,30 +117,15 @@ def absolute_dims(spec: FeatureSpec, joints: tuple[str, ...]) -> Tensor:
 
 
 class GatedResidualBlock(nn.Module):
-    """tanh(filter) * sigmoid(gate) of a dilated causal convolution, with residual and skip outputs."""
+    """The weights of one gated residual block: tanh(filter) * sigmoid(gate) of a dilated
+    causal convolution (``conv``), with residual (``res``) and skip (``skip``) outputs.
+    ``priors.stacked`` evaluates the blocks, as batched matrix products."""
 
     def __init__(self, channels: int, skip: int, kernel: int, dilation: int):
         super().__init__()
-        self.pad = (kernel - 1) * dilation
         self.conv = nn.Conv1d(channels, 2 * channels, kernel, dilation=dilation)
         self.res = nn.Conv1d(channels, channels, 1)
         self.skip = nn.Conv1d(channels, skip, 1)
-
-    def causal_conv(self, h: Tensor, past: Tensor | None = None) -> Tensor:
-        """``self.conv`` over ``h (B, C, T)`` after ``past (B, C, pad)`` (this block's input
-        at the frames before ``h``; None: zeros, the sequence's start), as one matrix
-        product over the taps stacked along the channels: the same numbers as ``Conv1d``,
-        whose dilated form runs on the CPU through a slow per-column path (a third of the
-        MAP solver's time), and 2-3 times faster than one product per tap on a batch."""
-        x = Fn.pad(h, (self.pad, 0)) if past is None else torch.cat((past.to(h), h), dim=-1)
-        w, d, t = self.conv.weight, self.conv.dilation[0], h.shape[-1]
-        taps = torch.cat([x[..., i * d:i * d + t] for i in range(w.shape[-1])], dim=-2)
-        return torch.matmul(w.transpose(1, 2).reshape(w.shape[0], -1), taps) + self.conv.bias[:, None]
-
-    def forward(self, h: Tensor, past: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        a, b = self.causal_conv(h, past).chunk(2, dim=1)
-        g = torch.tanh(a) * torch.sigmoid(b)
-        return h + self.res(g), self.skip(g)
 
 
 @dataclass
@@ -149,12 +135,13 @@ class ContextCache:
     costs 34 frames of work, not 34 plus the receptive field's 63.
 
     ``frames (C, D)``: the context; ``last (1, D)``: the frame that predicts the window's
-    first (the context's last, or a zero frame); ``past``: per block, its input at the
-    frames before ``last`` (1, channels, pad), zeros before the sequence's start."""
+    first (the context's last, or a zero frame); ``past``: per group of stacked networks
+    (``CCNetPrior._stacks``), per block, its input at the frames before ``last``
+    (networks, channels, 1, pad), zeros before the sequence's start."""
 
     frames: Tensor
     last: Tensor
-    past: list[Tensor]
+    past: list[list[Tensor]]
 
     @property
     def shape(self) -> torch.Size:
@@ -198,23 +185,54 @@ class CCNetPrior(nn.Module):
         return float(self.metadata.get("sample_temperature", DEFAULT_TEMPERATURE))
 
     # ---- core pass ---------------------------------------------------------------------
-    def _predict(self, history: Tensor, past: list[Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def _predict(self, history: Tensor, past: list[list[Tensor]] | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """For every frame of ``history (B, T, D)``: the Gaussian (mean, log-std) and contact
         logits of the *next* frame. Shapes (B, T, P), (B, T, P), (B, T, C). ``past``: each
         block's input before ``history`` (``ContextCache.past``); None: the sequence starts here."""
-        own, theirs = self._split(past)
-        h = history.transpose(1, 2)
+        inp = history
         if self.training and self.config.input_dropout > 0:
-            h = Fn.dropout(h, self.config.input_dropout)
-        h = self.encoder(h)
-        skip = 0
-        for i, block in enumerate(self.blocks):
-            h, s = block(h, None if own is None else own[i].expand(len(h), -1, -1))
-            skip = skip + s
-        mean, log_std, logits = self._head(history, self.decoder(skip).transpose(1, 2))
+            inp = Fn.dropout(history.transpose(1, 2), self.config.input_dropout).transpose(1, 2)
+        outs, _ = self._run(inp, past)
+        return self._pooled(history, outs)
+
+    def _stacks(self) -> list[StackedWeights]:
+        """This network's weights and its anchor's, stacked (``priors.stacked``): both in one
+        stack when they share an architecture. Rebuilt on every call in training, so that
+        gradients reach the parameters; otherwise kept until a parameter changes."""
+        groups: dict[tuple, list[CCNetPrior]] = {}
+        for net in ([self] if self.anchor is None else [self, self.anchor]):
+            groups.setdefault(architecture(net), []).append(net)
+        if self.training:
+            return [stack_weights(g) for g in groups.values()]
+        key = tuple((id(q), q._version) for q in self.parameters())
+        cached = self.__dict__.get("_stacked")
+        if cached is None or cached[0] != key:
+            with torch.no_grad():
+                cached = (key, [stack_weights(g) for g in groups.values()])
+            self.__dict__["_stacked"] = cached
+        return cached[1]
+
+    def _run(self, history: Tensor, past: list[list[Tensor]] | None = None
+             ) -> tuple[list[Tensor], list[list[Tensor]]]:
+        """Each network's decoder output (B, T, out) for frames ``history (B, T, D)``, in the
+        order this one, its anchor; and per stack, per block, its input over its receptive
+        span (``stacked.blocks``)."""
+        outs, spans = [], []
+        for g, w in enumerate(self._stacks()):
+            out, span = blocks(w, encode(w, history), None if past is None else past[g])
+            outs += list(out.permute(0, 2, 3, 1))
+            spans.append(span)
+        return outs, spans
+
+    def _pooled(self, history: Tensor, outs: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+        """The next frame's mean, log-std and contact logits after ``history`` from the
+        networks' outputs ``outs`` (``_run``): this network's Gaussian, pooled with its
+        anchor's when it has one."""
+        mean, log_std, logits = self._head(history, outs[0])
         if self.anchor is None:
             return mean, log_std, logits
-        return (*self.pool(mean, log_std, *self.anchor._predict(history, theirs)[:2]), logits)
+        anchor_mean, anchor_log_std, _ = self.anchor._head(history, outs[1])
+        return (*self.pool(mean, log_std, anchor_mean, anchor_log_std), logits)
 
     def unpooled(self) -> "CCNetPrior":
         """This prior without its anchor (itself when it has none), sharing its weights:
@@ -230,12 +248,6 @@ class CCNetPrior(nn.Module):
         alone._modules = {**self._modules, "anchor": None}
         alone.config = replace(self.config, anchor=None, anchor_weight=0.0)
         return alone
-
-    def _split(self, past: list[Tensor] | None) -> tuple[list[Tensor] | None, list[Tensor] | None]:
-        """``past`` (this network's blocks' states, then the anchor's) as the two parts."""
-        if past is None:
-            return None, None
-        return past[:len(self.blocks)], past[len(self.blocks):]
 
     def pool(self, mean: Tensor, log_std: Tensor, anchor_mean: Tensor, anchor_log_std: Tensor
              ) -> tuple[Tensor, Tensor]:
@@ -273,36 +285,25 @@ class CCNetPrior(nn.Module):
                                 self.log_std_floor)
         return log_std, out[..., 2 * p:]
 
-    def _past(self, frames: Tensor) -> list[Tensor]:
-        """Per block, its input (B, channels, pad) at the frames of ``frames (B, T, D)`` before
-        the last (zeros before the sequence's start): the state ``_advance`` continues from
-        when it is handed the last frame."""
-        theirs = [] if self.anchor is None else self.anchor._past(frames)
-        if frames.shape[-2] < 2:   # nothing before the last frame: the sequence starts there
-            return [frames.new_zeros(len(frames), self.config.channels, b.pad) for b in self.blocks] + theirs
-        h = self.encoder(frames[:, :-1].transpose(1, 2))
-        past = []
-        for block in self.blocks:
-            past.append(Fn.pad(h, (block.pad, 0))[..., h.shape[-1]:])
-            h, _ = block(h)
-        return past + theirs
+    def _past(self, frames: Tensor) -> list[list[Tensor]]:
+        """Per stack, per block, its input (networks, channels, B, pad) at the frames of
+        ``frames (B, T, D)`` before the last (zeros before the sequence's start): the state
+        ``_advance`` continues from when it is handed the last frame."""
+        t = frames.shape[-2] - 1
+        if t < 1:   # nothing before the last frame: the sequence starts there
+            return [[frames.new_zeros(w.encoder[0][0].shape[0], w.channels, len(frames), (w.kernel - 1) * d)
+                     for d in w.dilations] for w in self._stacks()]
+        _, spans = self._run(frames[:, :-1])
+        return [[x[..., t:] for x in span] for span in spans]
 
-    def _advance(self, frame: Tensor, past: list[Tensor]) -> tuple[Tensor, Tensor, Tensor, list[Tensor]]:
+    def _advance(self, frame: Tensor, past: list[list[Tensor]]
+                 ) -> tuple[Tensor, Tensor, Tensor, list[list[Tensor]]]:
         """The next frame's mean, log-std and contact logits (B, P), (B, P), (B, C) after
         ``frame (B, D)``, and the blocks' inputs moved on by it: one frame of network work
         per step of a rollout instead of a pass over the receptive field's 63 frames."""
-        own, theirs = self._split(past)
-        h = self.encoder(frame[:, :, None])
-        skip, moved = 0, []
-        for block, p in zip(self.blocks, own):
-            moved.append(torch.cat((p, h), dim=-1)[..., 1:])
-            h, s = block(h, p)
-            skip = skip + s
-        mean, log_std, logits = self._head(frame, self.decoder(skip)[..., 0])
-        if self.anchor is None:
-            return mean, log_std, logits, moved
-        anchor_mean, anchor_log_std, _, theirs = self.anchor._advance(frame, theirs)
-        return (*self.pool(mean, log_std, anchor_mean, anchor_log_std), logits, moved + theirs)
+        outs, spans = self._run(frame[:, None], past)
+        mean, log_std, logits = self._pooled(frame, [o[:, 0] for o in outs])
+        return mean, log_std, logits, [[x[..., 1:] for x in span] for span in spans]
 
     def _history(self, x: Tensor, context: Tensor | None) -> tuple[Tensor, int]:
         """Frames that predict ``x``: context (or a zero frame) followed by x without its last frame."""
