@@ -387,6 +387,25 @@ class SupportTerm(FrameMasked, FootTerm):
 
 
 @dataclass
+class FloorTerm(FootTerm):
+    """No contact joint goes through the floor: each joint's depth below its planted
+    height, where positive, with sigma ``sigma`` (m). ``SupportTerm`` pulls the lowest foot
+    down to the floor and nothing else holds it above: with the support term alone, the
+    path-following solve put the lowest foot more than 3 cm below the floor in up to a
+    fifth of the frames of held-out Bandai walks."""
+
+    sigma: float = 0.01
+    name: str = "floor"
+
+    def __post_init__(self) -> None:
+        if not self.sigma > 0:
+            raise ValueError(f"the floor term needs a positive sigma; got {self.sigma}")
+
+    def energy(self, state: WindowState) -> Tensor:
+        return _gaussian(torch.relu(-self.heights(state)).pow(2), self.sigma).sum((-1, -2))
+
+
+@dataclass
 class SmoothnessTerm(Term):
     """Joint accelerations (m/s^2) small, with sigma ``sigma``: one for every joint, or
     one per joint of the model skeleton; uses the solved frames before the window so that

@@ -15,7 +15,7 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
-from motionopt.objective import (ContactTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm,
+from motionopt.objective import (ContactTerm, FloorTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm,
                                  Term)
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
@@ -121,9 +121,11 @@ SKATING_BAND = 0.03
 #: completion, whose root is free: with the skating term alone the body
 #: rose so that no foot was near the floor to glide. Completing 5 s after the first second
 #: of held-out Bandai clips (bench/tasks.py 4b), 5 mm kept 39 of 45 seconds in the data's
-#: range, 1 cm 38, 2 cm 36, 5 cm 33. In path following the path holds the root, and 5 mm
-#: made feet skate more (2.8 times mocap's on a square against 0.5).
+#: range, 1 cm 38, 2 cm 36, 5 cm 33. Path following needs it too (``PathFollow``): the path
+#: holds the root's ground position, not its height.
 SUPPORT_SIGMA = 0.005
+#: Sigma (m) of a contact joint's depth below its planted height (``FloorTerm``).
+FLOOR_SIGMA = 0.01
 #: In-betweening's skating term: on held-out Bandai gaps of 5/15/30 frames (bench/tasks.py,
 #: LAFAN1 protocol) feet skated 1.30/2.23/2.88 times the mocap's in the same gaps without
 #: it (L2P 0.074/0.248/0.420 m), 0.67/0.68/1.09 with 0.2 within 1.5 cm (L2P
@@ -163,6 +165,8 @@ class TermSigmas:
     #: where the solve's start plants a foot ("planted") or those where the prior's contact
     #: head, run over the start, expects one ("expected", ``support_frames``)
     support_where: str = "all"
+    #: m of a contact joint below its planted height (``FloorTerm``); None: no floor term
+    floor: float | None = None
 
     def __post_init__(self) -> None:
         if self.support_where not in SUPPORT_WHERE:
@@ -230,6 +234,8 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
         mask = support_frames(prior, start) if sigmas.support_where == "expected" else None
         terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support, mask=mask,
                                  planted_only=sigmas.support_where == "planted"))
+    if sigmas.floor:
+        terms.append(FloorTerm(cidx, prep.planted_height, sigmas.floor))
     return terms
 
 

@@ -19,8 +19,8 @@ from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
-from .common import (MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, Prepared, TaskResult, TermSigmas, judged,
-                     plant_feet, prepare, read_text, root_features, run, standard_terms,
+from .common import (FLOOR_SIGMA, MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, Prepared, TaskResult, TermSigmas, judged,
+                     plant_feet, prepare, read_text, root_features, run, standard_terms, SUPPORT_SIGMA,
                      warned)
 from .rollout import chosen_rollout, lift_limit
 
@@ -83,10 +83,17 @@ class PathFollow:
     ``candidates`` (``rollout.chosen_rollout``). With ``refine`` (the default) the MAP
     solver then solves every new frame, root included, under the prior, the path
     (``sigma_path`` metres from it; ``sigma_timing`` from the point its timing gives),
-    planted feet (``ContactTerm``) and feet that glide near the floor (``SkatingTerm``).
+    planted feet (``ContactTerm``), feet that glide near the floor (``SkatingTerm``), the
+    lowest foot on the floor (``SupportTerm``) and no foot through it (``FloorTerm``).
     Held-out Bandai walks (bench/paths.py) showed why each is as it is: without the
     skating term the solved feet skimmed the floor at walking speed (skating 1.3-2.3 times
-    mocap's per 5 s); at ``sigma_path`` 2 cm the root drifted 5-10 cm off a square, and at
+    mocap's per 5 s); with it but without the support term the solve lifted the whole
+    body until the lowest foot floated 6-12 cm above the floor (median per second over a
+    10 s square; the rollout it started from: 2-5 cm) and left the leg IK to put the feet
+    back: the energy at the result was below that of the same motion lowered to the floor
+    (-712 against 12,593 nats, 10,000 of them skating), an objective that prefers to float,
+    not a search failure. With the support term alone the lowest foot went more than 3 cm
+    through the floor in up to 8% of frames, hence the floor term. At ``sigma_path`` 2 cm the root drifted 5-10 cm off a square, and at
     1 cm 3-4 cm off a straight line, although the same poses with the root on the path
     scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
     window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by 12
@@ -109,7 +116,8 @@ class PathFollow:
     seconds: float | None = None
     sigma_path: float = 0.005
     sigma_timing: float = 0.3
-    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(skating=SKATING_SIGMA))
+    sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(skating=SKATING_SIGMA, support=SUPPORT_SIGMA,
+                                                                  floor=FLOOR_SIGMA))
     options: SolverOptions = field(default_factory=lambda: SolverOptions(window=56, overlap=12))
     refine: bool = True
     candidates: int = 8

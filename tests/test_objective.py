@@ -12,7 +12,7 @@ from motionopt import bvh
 from motionopt import rotations as R
 from motionopt.features import RootStart, advance, decode, decode_positions, encode, to_model_motion
 from motionopt.kinematics import fk_matrices
-from motionopt.objective import (ContactTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
+from motionopt.objective import (ContactTerm, FloorTerm, JointPositionTerm, MAPObjective, NonFiniteTermError, PathTerm,
                                  PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm, WindowState,
                                  nearest_on_polyline_sq)
 
@@ -86,6 +86,8 @@ def terms():
         # planted heights at the feet's own mean height: the gate is neither 0 nor 1
         "skating": SkatingTerm(feet, foot_heights, softness=0.02),
         "support": SupportTerm(feet, foot_heights - 0.02),
+        # planted heights above the feet's mean height: some frames are below the floor
+        "floor": FloorTerm(feet, foot_heights + 0.01),
         "smoothness, one sigma per joint": SmoothnessTerm(list(np.linspace(4.0, 20.0, sk.num_joints))),
     }
 
@@ -268,3 +270,18 @@ def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
                          mask=np.array([True, False, True, False, False]))
     assert float(masked.energy(state(0.11, 0.11))) == pytest.approx(2.0, rel=0.05)
     assert not SupportTerm([0], np.zeros(1), mask=np.array([True, False, False])).active(np.arange(1, 3))
+
+
+def test_floor_term_costs_each_joint_below_its_planted_height_and_nothing_above():
+    """A joint 2 cm below its planted height costs (0.02 / sigma)^2 / 2 per frame, one at
+    or above it nothing: a swinging foot may rise, none may go through the floor."""
+    term = FloorTerm([0, 1], np.array([0.05, 0.10]), sigma=0.01)
+    pos = torch.zeros(4, 2, 3, dtype=torch.float64)
+    pos[:, 0, 1], pos[:, 1, 1] = 0.03, 0.30
+    state = WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
+                        torch.zeros(3, 2), torch.zeros(3), 30.0)
+    assert float(term.energy(state)) == pytest.approx(3 * 2.0)
+    pos[:, 0, 1] = 0.05
+    assert float(term.energy(state)) == 0.0
+    with pytest.raises(ValueError, match="positive sigma"):
+        FloorTerm([0], np.zeros(1), sigma=0.0)
