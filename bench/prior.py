@@ -48,6 +48,8 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+import scipy.stats
 import torch
 from torch import Tensor
 
@@ -204,16 +206,28 @@ def ranking(prior, clips: list[Clip], window_s: float = 4.0, stride_s: float = 2
     return lines, share
 
 
+def gaussian_equivalent(z: torch.Tensor, prior) -> torch.Tensor:
+    """One-step z-scores ``z`` of ``prior`` as a standard Gaussian's: unchanged for a
+    Gaussian prior; for a Student-t one (``CCNetConfig.tail_dof``), each z mapped through
+    the t's CDF and the Gaussian's inverse CDF, so that a calibrated prior of either kind
+    has z RMS 1 and median |z| / 0.674 = 1."""
+    dof = getattr(getattr(prior, "config", None), "tail_dof", 0.0)
+    if not dof:
+        return z
+    u = scipy.stats.t.cdf(z.double().numpy(), dof)
+    return torch.from_numpy(scipy.stats.norm.ppf(np.clip(u, 1e-12, 1 - 1e-12))).to(z)
+
+
 @torch.no_grad()
 def one_step_calibration(prior, clips: list[Clip]) -> list[str]:
     """Lines: one-step z-scores of held-out clips per feature group (RMS, and the spread
-    median |z| / 0.674, both 1 for a calibrated Gaussian) and the contact head's Brier
-    score and reliability."""
+    median |z| / 0.674, both 1 for a calibrated Gaussian; a Student-t prior's as their
+    ``gaussian_equivalent``) and the contact head's Brier score and reliability."""
     p = prior.spec.pose_dim
     zs, probs, labels = [], [], []
     for clip in clips:
         mean, log_std, logits = prior.gaussian(clip.x[1:], context=clip.x[:1])
-        zs.append((clip.x[1:, :p] - mean) * torch.exp(-log_std))
+        zs.append(gaussian_equivalent((clip.x[1:, :p] - mean) * torch.exp(-log_std), prior))
         probs.append(torch.sigmoid(logits))
         labels.append(clip.x[1:, p:])
     z = torch.cat(zs)

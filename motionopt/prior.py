@@ -30,6 +30,21 @@ def gaussian_nll(x: Tensor, mean: Tensor, log_std: Tensor, mask: Tensor | None =
     return 0.5 * z * z + norm
 
 
+def student_nll(x: Tensor, mean: Tensor, log_scale: Tensor, dof: float, mask: Tensor | None = None) -> Tensor:
+    """-log t_dof(x; mean, exp(log_scale)) per dimension: Student's t with ``dof`` degrees of
+    freedom, whose cost grows with the log of a far-off value's square rather than with
+    the square, so that a few dimensions a clip moves as the training data never did do
+    not outweigh every other dimension of the frame. ``mask`` as ``gaussian_nll``'s."""
+    z = (x - mean) * torch.exp(-log_scale)
+    if mask is not None:
+        z = z * mask
+    const = math.lgamma(dof / 2) - math.lgamma((dof + 1) / 2) + 0.5 * math.log(dof * math.pi)
+    norm = log_scale + const
+    if mask is not None:
+        norm = norm * mask
+    return 0.5 * (dof + 1) * torch.log1p(z * z / dof) + norm
+
+
 def scoring_log_std(predicted: Tensor, log_std: Tensor | None = None,
                     min_log_std: float | Tensor | None = None) -> Tensor:
     """The log-std a frame is scored with (``MotionPrior.nll_and_contacts``): ``log_std``

@@ -29,7 +29,7 @@ from torch import Tensor, nn
 from motionopt import rotations as R
 from motionopt.dataset import Normalizer
 from motionopt.features import FeatureSpec, contact_heights, planted_root_step
-from motionopt.prior import gaussian_nll, scoring_log_std
+from motionopt.prior import gaussian_nll, scoring_log_std, student_nll
 from motionopt.skeleton import Skeleton
 
 from .degrade import degraded_batch
@@ -83,6 +83,11 @@ class CCNetConfig:
     #: low-passed copies of real motion above it (bench/prior.py).
     anchor: "CCNetConfig | None" = None
     anchor_weight: float = 0.0
+    #: Degrees of freedom of a Student-t likelihood per dimension (0: Gaussian). The
+    #: predicted log-std is then the t's log-scale. Rollouts draw from a Gaussian of that
+    #: scale: the t's tails are for scoring a held-out clip's rare dimensions, not for
+    #: sampling jumps.
+    tail_dof: float = 0.0
 
     @classmethod
     def from_dict(cls, d: dict) -> "CCNetConfig":
@@ -95,6 +100,7 @@ class CCNetConfig:
         d.setdefault("std_floor", 0.0)
         d.setdefault("absolute_pose", False)  # checkpoints from before the field predicted changes
         d["absolute_joints"] = tuple(d.get("absolute_joints", ()))
+        d.setdefault("tail_dof", 0.0)  # checkpoints from before the field are Gaussian
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -342,10 +348,13 @@ class CCNetPrior(nn.Module):
     def nll_and_contacts(self, x: Tensor, context: Tensor | None = None, min_log_std: float | Tensor | None = None,
                          log_std: Tensor | None = None) -> tuple[Tensor, Tensor]:
         mean, predicted, logits = self.gaussian(x, context)
-        return self._gaussian_nll(x, mean, scoring_log_std(predicted, log_std, min_log_std)), torch.sigmoid(logits)
+        return self._frame_nll(x, mean, scoring_log_std(predicted, log_std, min_log_std)), torch.sigmoid(logits)
 
-    def _gaussian_nll(self, x: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
-        """Per-frame NLL of the pose part of ``x`` over the moving dimensions."""
+    def _frame_nll(self, x: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
+        """Per-frame NLL of the pose part of ``x`` over the moving dimensions: Gaussian, or
+        Student-t with ``config.tail_dof`` degrees of freedom."""
+        if self.config.tail_dof > 0:
+            return student_nll(x[..., :self.spec.pose_dim], mean, log_std, self.config.tail_dof, self.moving).sum(-1)
         return gaussian_nll(x[..., :self.spec.pose_dim], mean, log_std, self.moving).sum(-1)
 
     def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
@@ -455,7 +464,7 @@ class CCNetPrior(nn.Module):
         nlls = []
         for k in range(passes):
             mean, log_std, logits = self._predict(self._noised(hist, noise_std))
-            per_frame = self._gaussian_nll(target, mean, log_std)
+            per_frame = self._frame_nll(target, mean, log_std)
             nlls.append((per_frame * w).sum() / w.sum())
             if k == 0:
                 real = per_frame
@@ -490,7 +499,7 @@ class CCNetPrior(nn.Module):
         drawn = self.sample(x[:, :c], frames - 1, temperature=temperature, plant=False)
         hist = torch.cat((x[:, :c], drawn), dim=1)
         mean, log_std, _ = self._predict(self._noised(hist, noise_std))
-        per_frame = self._gaussian_nll(x[:, c:], mean[:, c - 1:], log_std[:, c - 1:])
+        per_frame = self._frame_nll(x[:, c:], mean[:, c - 1:], log_std[:, c - 1:])
         wr = w[:, c - 1:]
         return (per_frame * wr).sum() / wr.sum().clamp_min(1)
 
@@ -514,7 +523,7 @@ class CCNetPrior(nn.Module):
             copy = self.project(norm.normalize(raw).to(x))
         mask = mask[:, 1:].to(x) * w
         mean, log_std, _ = self._predict(self._noised(copy[:, :-1], noise_std))
-        fake = self._gaussian_nll(copy[:, 1:], mean, log_std.detach())
+        fake = self._frame_nll(copy[:, 1:], mean, log_std.detach())
         dims = self.moving.sum()
         fake_mean = (fake * mask).sum(1) / mask.sum(1).clamp_min(1) / dims
         real_mean = (real * w).sum(1) / w.sum(1).clamp_min(1) / dims

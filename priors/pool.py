@@ -28,6 +28,9 @@ def pool_priors(prior_path: str | Path, anchor_path: str | Path, weight: float) 
             raise ValueError(f"{path} is a {type(p).__name__}; pooling needs autoregressive (CCNet) checkpoints")
         if p.anchor is not None:
             raise ValueError(f"{path} is already pooled with an anchor")
+    for path, p in ((prior_path, prior), (anchor_path, anchor)):
+        if p.config.tail_dof > 0:
+            raise ValueError(f"{path} scores with a Student-t (--tail-dof); the pool is of two Gaussians")
     if not anchor.config.absolute_pose:
         raise ValueError(f"{anchor_path} predicts changes of the pose; the anchor must predict the pose itself "
                          "(train it with train-prior --absolute-pose)")

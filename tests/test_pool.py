@@ -88,6 +88,11 @@ def test_pooling_refuses_what_it_cannot_pool(parts, tmp_path):
     save_prior(other, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="normalise"):
         pool_priors(prior, tmp_path / "other.pt", 0.5)
+    heavy = load_prior(anchor)
+    heavy.config = replace(heavy.config, tail_dof=5.0)
+    save_prior(heavy, tmp_path / "heavy.pt")
+    with pytest.raises(ValueError, match="Student-t"):
+        pool_priors(prior, tmp_path / "heavy.pt", 0.5)
 
 
 def test_unpooled_is_the_change_model_alone_and_leaves_the_pool_whole(parts, x):

@@ -372,10 +372,10 @@ def test_the_free_running_pass_scores_frames_after_the_models_own_draws(prior, x
         w = torch.ones(2, x.shape[0] - 1)
         batch = torch.stack((x, x))
         one = prior._rollout_nll(batch, w, 1, 1.0, 0.0)
-        tail = prior._gaussian_nll(x[None, -1:], *prior._predict(x[None, :-1])[:2])[:, -1:]
+        tail = prior._frame_nll(x[None, -1:], *prior._predict(x[None, :-1])[:2])[:, -1:]
         assert float(one) == pytest.approx(float(tail.mean()), rel=1e-5)
         drawn = prior._rollout_nll(batch, w, 20, 1.0, 0.0)
-        real = prior._gaussian_nll(x[None, 1:], *prior._predict(x[None, :-1])[:2])[0, -20:].mean()
+        real = prior._frame_nll(x[None, 1:], *prior._predict(x[None, :-1])[:2])[0, -20:].mean()
         assert float(drawn) > float(real)
         loss, parts = prior.loss(batch, rollout_frames=20)
         loss.backward()
@@ -383,3 +383,30 @@ def test_the_free_running_pass_scores_frames_after_the_models_own_draws(prior, x
     finally:
         prior.zero_grad(set_to_none=True)
         prior.eval()
+
+
+def test_a_student_t_prior_scores_by_the_t_and_keeps_it_in_its_checkpoint(prior, x, tmp_path):
+    """``tail_dof``: the per-frame NLL is the sum over moving dimensions of Student-t
+    log-densities (torch's own) at the predicted mean and scale; a dimension far from its
+    prediction costs the log of its square, less than the Gaussian's square; the field
+    survives a checkpoint, and one from before it loads as Gaussian."""
+    from dataclasses import replace
+
+    t_prior = copy.copy(prior)
+    t_prior.config = replace(prior.config, tail_dof=5.0)
+    with torch.no_grad():
+        mean, log_std, _ = prior.gaussian(x[1:], x[:1])
+        got = t_prior.nll(x[1:], x[:1])
+        moving = prior.moving.bool()
+        want = -torch.distributions.StudentT(5.0, mean, log_std.exp()).log_prob(x[1:, :prior.spec.pose_dim])
+        assert torch.allclose(got, want[:, moving].sum(-1), rtol=1e-4, atol=1e-3)
+        far = x[1:].clone()
+        far[:, int(torch.nonzero(moving)[0])] += 50.0
+        assert float((t_prior.nll(far, x[:1]) - got).min()) < float((prior.nll(far, x[:1]) - prior.nll(x[1:], x[:1])).min())
+    path = tmp_path / "t.pt"
+    save_prior(t_prior, path)
+    assert load_prior(path).config.tail_dof == 5.0
+    data = read_checkpoint(path)
+    del data["config"]["tail_dof"]
+    torch.save(data, path)
+    assert load_prior(path).config.tail_dof == 0.0

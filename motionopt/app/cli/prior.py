@@ -13,7 +13,7 @@ from . import UserError, add_common
 TRAIN_DEFAULTS = {"batch_size": 32, "noise_std": 0.03, "smooth_weight": 10.0, "channels": 64,
                   "input_dropout": 0.1, "log_std_min": -5.0, "std_floor": 0.0, "stride": 8,
                   "contrast_weight": 1.0, "contrast_margin": 0.1,
-                  "rollout_frames": 0, "rollout_temperature": 0.5}
+                  "rollout_frames": 0, "rollout_temperature": 0.5, "tail_dof": 0.0}
 
 
 def register(sub) -> None:
@@ -44,6 +44,9 @@ def register(sub) -> None:
                    help="floor of the predicted std in the features' own units (6D rotation components, "
                    "metres), so that dimensions nearly still in training are not scored as certain "
                    f"(default {d['std_floor']:g}: none)")
+    p.add_argument("--tail-dof", type=float, default=d["tail_dof"],
+                   help="score each dimension by a Student-t with these degrees of freedom instead of a Gaussian "
+                   "(heavier tails: a few dimensions far from the prediction cost less; default 0: Gaussian)")
     p.add_argument("--stride", type=int, default=d["stride"],
                    help=f"frames between the starts of training windows (default {d['stride']})")
     p.add_argument("--contrast-weight", type=float, default=d["contrast_weight"],
@@ -151,7 +154,7 @@ def train_config(args: argparse.Namespace):
 
     model = CCNetConfig(channels=args.channels, skip_channels=2 * args.channels, input_dropout=args.input_dropout,
                         log_std_min=args.log_std_min, std_floor=args.std_floor, absolute_pose=args.absolute_pose,
-                        absolute_joints=tuple(args.absolute_joints))
+                        absolute_joints=tuple(args.absolute_joints), tail_dof=args.tail_dof)
     return TrainConfig(epochs=args.epochs, window=args.window, seed=args.seed, max_minutes=args.max_minutes,
                        threads=args.threads, passes=args.passes, batch_size=args.batch_size,
                        noise_std=args.noise_std, smooth_weight=args.smooth_weight, device=args.device, model=model,
