@@ -84,7 +84,9 @@ class PathFollow:
     solver then solves every new frame, root included, under the prior, the path
     (``sigma_path`` metres from it; ``sigma_timing`` from the point its timing gives),
     planted feet (``ContactTerm``), feet that glide near the floor (``SkatingTerm``), the
-    lowest foot on the floor (``SupportTerm``) and no foot through it (``FloorTerm``).
+    lowest foot on the floor where the prior's contact head expects a foot down
+    (``SupportTerm``; a run's flight and a dancer's jump stay free) and no foot through it
+    (``FloorTerm``).
     Held-out Bandai walks (bench/paths.py) showed why each is as it is: without the
     skating term the solved feet skimmed the floor at walking speed (skating 1.3-2.3 times
     mocap's per 5 s); with it but without the support term the solve lifted the whole
@@ -117,7 +119,7 @@ class PathFollow:
     sigma_path: float = 0.005
     sigma_timing: float = 0.3
     sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(skating=SKATING_SIGMA, support=SUPPORT_SIGMA,
-                                                                  floor=FLOOR_SIGMA))
+                                                                  support_where="expected", floor=FLOOR_SIGMA))
     options: SolverOptions = field(default_factory=lambda: SolverOptions(window=56, overlap=12))
     refine: bool = True
     candidates: int = 8
