@@ -36,12 +36,9 @@ def student_nll(x: Tensor, mean: Tensor, log_scale: Tensor, dof: float, mask: Te
     the square, so that a few dimensions a clip moves as the training data never did do
     not outweigh every other dimension of the frame. ``mask`` as ``gaussian_nll``'s."""
     z = (x - mean) * torch.exp(-log_scale)
+    norm = log_scale + (math.lgamma(dof / 2) - math.lgamma((dof + 1) / 2) + 0.5 * math.log(dof * math.pi))
     if mask is not None:
-        z = z * mask
-    const = math.lgamma(dof / 2) - math.lgamma((dof + 1) / 2) + 0.5 * math.log(dof * math.pi)
-    norm = log_scale + const
-    if mask is not None:
-        norm = norm * mask
+        z, norm = z * mask, norm * mask
     return 0.5 * (dof + 1) * torch.log1p(z * z / dof) + norm
 
 

@@ -205,18 +205,22 @@ class CCNetPrior(nn.Module):
         """This network's weights and its anchor's, stacked (``priors.stacked``): both in one
         stack when they share an architecture. Rebuilt on every call in training, so that
         gradients reach the parameters; otherwise kept until a parameter changes."""
-        groups: dict[tuple, list[CCNetPrior]] = {}
-        for net in ([self] if self.anchor is None else [self, self.anchor]):
-            groups.setdefault(architecture(net), []).append(net)
         if self.training:
-            return [stack_weights(g) for g in groups.values()]
+            return self._stack_groups()
         key = tuple((id(q), q._version) for q in self.parameters())
         cached = self.__dict__.get("_stacked")
         if cached is None or cached[0] != key:
             with torch.no_grad():
-                cached = (key, [stack_weights(g) for g in groups.values()])
+                cached = (key, self._stack_groups())
             self.__dict__["_stacked"] = cached
         return cached[1]
+
+    def _stack_groups(self) -> list[StackedWeights]:
+        """This network and its anchor grouped by ``stacked.architecture``, each group stacked."""
+        groups: dict[tuple, list[CCNetPrior]] = {}
+        for net in ([self] if self.anchor is None else [self, self.anchor]):
+            groups.setdefault(architecture(net), []).append(net)
+        return [stack_weights(g) for g in groups.values()]
 
     def _run(self, history: Tensor, past: list[list[Tensor]] | None = None
              ) -> tuple[list[Tensor], list[list[Tensor]]]:
@@ -353,9 +357,10 @@ class CCNetPrior(nn.Module):
     def _frame_nll(self, x: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
         """Per-frame NLL of the pose part of ``x`` over the moving dimensions: Gaussian, or
         Student-t with ``config.tail_dof`` degrees of freedom."""
+        pose = x[..., :self.spec.pose_dim]
         if self.config.tail_dof > 0:
-            return student_nll(x[..., :self.spec.pose_dim], mean, log_std, self.config.tail_dof, self.moving).sum(-1)
-        return gaussian_nll(x[..., :self.spec.pose_dim], mean, log_std, self.moving).sum(-1)
+            return student_nll(pose, mean, log_std, self.config.tail_dof, self.moving).sum(-1)
+        return gaussian_nll(pose, mean, log_std, self.moving).sum(-1)
 
     def nll(self, x: Tensor, context: Tensor | None = None) -> Tensor:
         return self.nll_and_contacts(x, context)[0]

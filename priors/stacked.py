@@ -56,8 +56,8 @@ def stack_weights(nets: list[nn.Module]) -> StackedWeights:
         w = torch.stack([b.conv.weight for b in layer])                  # (N, 2C, C, K)
         conv.append((w.transpose(2, 3).reshape(w.shape[0], w.shape[1], -1),
                      torch.stack([b.conv.bias[:, None] for b in layer])))
-    skip_w = torch.cat([_conv([b.skip for b in layer])[0] for layer in blocks], dim=-1)
-    skip_b = sum(_conv([b.skip for b in layer])[1] for layer in blocks)
+    skips = [_conv([b.skip for b in layer]) for layer in blocks]
+    skip_w, skip_b = torch.cat([w for w, _ in skips], dim=-1), sum(b for _, b in skips)
     first = nets[0]
     return StackedWeights(
         encoder=[_conv([n.encoder[i] for n in nets]) for i in (0, 2)],

@@ -15,8 +15,8 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
-from motionopt.objective import (ContactTerm, FloorTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm, SupportTerm,
-                                 Term)
+from motionopt.objective import (ContactTerm, FloorTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm,
+                                 SupportTerm, Term)
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
 from priors.checkpoint import check_compatible
 from priors.train import ACCELERATION_KEY

@@ -19,9 +19,8 @@ from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
 from priors.checkpoint import shown
 
-from .common import (FLOOR_SIGMA, MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, Prepared, TaskResult, TermSigmas, judged,
-                     plant_feet, prepare, read_text, root_features, run, standard_terms, SUPPORT_SIGMA,
-                     warned)
+from .common import (FLOOR_SIGMA, MAX_COORDINATE, MAX_HUMAN_SPEED, SKATING_SIGMA, SUPPORT_SIGMA, Prepared, TaskResult,
+                     TermSigmas, judged, plant_feet, prepare, read_text, root_features, run, standard_terms, warned)
 from .rollout import chosen_rollout, lift_limit
 
 #: Most seconds of new motion one run makes (a longer path: several runs, each continuing the last).
@@ -95,10 +94,11 @@ class PathFollow:
     back: the energy at the result was below that of the same motion lowered to the floor
     (-712 against 12,593 nats, 10,000 of them skating), an objective that prefers to float,
     not a search failure. With the support term alone the lowest foot went more than 3 cm
-    through the floor in up to 8% of frames, hence the floor term. At ``sigma_path`` 2 cm the root drifted 5-10 cm off a square, and at
-    1 cm 3-4 cm off a straight line, although the same poses with the root on the path
-    scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
-    window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by 12
+    through the floor in up to 8% of frames, hence the floor term. At ``sigma_path`` 2 cm
+    the root drifted 5-10 cm off a square, and at 1 cm 3-4 cm off a straight line,
+    although the same poses with the root on the path scored lower
+    (``solver.energies_at``): a search failure in 30 L-BFGS iterations per window, which
+    the steeper 5 mm term pulls back. Windows of 56 frames overlapping by 12
     (the solver's default: 34 by 17) run 30-35 frames per second on one thread against
     24-34 at 40 by 12 (all four measures of bench/paths.py in 44 of 48 segments against
     43). Without ``refine`` the rollout, its feet planted, is the result.
