@@ -355,10 +355,16 @@ class SkatingTerm(FootTerm):
 
 @dataclass
 class SupportTerm(FrameMasked, FootTerm):
-    """Some foot stands on the floor: the height above its planted height of the lowest
-    contact joint (a soft minimum over ``joints``, ``softness`` metres), where positive,
-    with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a body whose root is free
-    (prefix completion) from rising so that no foot is near the floor to glide."""
+    """Some foot stands on the floor: the height of the lowest contact joint (a soft
+    minimum over ``joints``, ``softness`` metres) above the floor, the lowest planted
+    height, where positive, with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a
+    body whose root is free (prefix completion) from rising so that no foot is near the
+    floor to glide.
+
+    The floor is one height for every joint, not each joint's own planted height: so
+    measured, an ankle at its planted height counted as support, and path following from
+    a standing start stood on one heel with the toes 4-6 cm up for half a second
+    (held-out Bandai walks, ``bench/paths.py``)."""
 
     sigma: float = 0.03
     softness: float = 0.01
@@ -376,7 +382,9 @@ class SupportTerm(FrameMasked, FootTerm):
                              f"{self.softness}")
 
     def energy(self, state: WindowState) -> Tensor:
-        lowest = -self.softness * torch.logsumexp(-self.heights(state) / self.softness, dim=-1)
+        planted = self.window_tensors(state.frames, state.positions.dtype)["planted"]
+        above_floor = self.heights(state) + planted - planted.min()
+        lowest = -self.softness * torch.logsumexp(-above_floor / self.softness, dim=-1)
         e = _gaussian(torch.relu(lowest).pow(2), self.sigma)
         if self.planted_only:
             e = e * (state.contacts > 0.5).any(-1).to(e)

@@ -355,6 +355,23 @@ def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:
     return np.concatenate((probs[:1], probs)) if len(probs) else np.zeros((len(x), prior.spec.num_contacts))
 
 
+#: How far (m) ``plant_feet`` may lift a planted foot that the leg cannot reach
+#: (``footik.clean_contacts``' ``max_rise``); beyond it the foot slides towards the hip.
+PLANT_MAX_RISE = 0.02
+
+
+def planted_contacts(probabilities: np.ndarray, positions: np.ndarray, cidx: list[int], planted_height: np.ndarray,
+                     height: float, fps: float, slow: float) -> np.ndarray:
+    """(T, C) contacts for the foot IK: the prior's contact ``probabilities`` where the
+    joint is within ``height`` m of its planted height, and 1 where it is that near and
+    moves slower than ``slow`` m/s (``contact_labels``). A foot the prior calls planted
+    while it swings higher is left free: planted, the IK dragged it down or, out of
+    reach, lifted the whole foot (path following's first second from a standing start,
+    held-out Bandai walks)."""
+    near_floor = positions[:, cidx, 1] - planted_height < height
+    return np.maximum(probabilities * near_floor, contact_labels(positions, cidx, fps, 0.0, height, slow))
+
+
 def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray,
                frames: slice | np.ndarray, slow: float = 1.0) -> Motion:
     """Foot-contact cleanup (``footik.clean_contacts``) on ``frames`` of a model motion,
@@ -362,14 +379,13 @@ def plant_feet(model: Motion, prior, x: torch.Tensor, planted_height: np.ndarray
     near the ground moving slower than ``slow`` m/s; other frames (``frames``: a slice or a mask) stay as they are."""
     from motionopt.footik import clean_contacts
 
-    contacts = contact_probabilities(prior, x)
-    cidx = prior.spec.contact_indices()
-    contacts = np.maximum(contacts, contact_labels(model.positions(), cidx, model.fps, 0.0,
-                                                   prior.spec.contact_height, slow))
+    contacts = planted_contacts(contact_probabilities(prior, x), model.positions(), prior.spec.contact_indices(),
+                                planted_height, prior.spec.contact_height, model.fps, slow)
     keep = np.ones(model.num_frames, bool)
     keep[frames] = False
     contacts[keep] = 0.0
-    cleaned = clean_contacts(model, list(prior.spec.contact_joints), contacts, planted_height, blend_frames=6)
+    cleaned = clean_contacts(model, list(prior.spec.contact_joints), contacts, planted_height, blend_frames=6,
+                             max_rise=PLANT_MAX_RISE)
     rot = np.where(keep[:, None, None], model.rotations, cleaned.rotations)
     return model.with_frames(rot, model.root.copy(), model.translations)
 

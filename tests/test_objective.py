@@ -272,6 +272,22 @@ def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
     assert not SupportTerm([0], np.zeros(1), mask=np.array([True, False, False])).active(np.arange(1, 3))
 
 
+def test_support_term_measures_every_joint_from_the_floor_not_its_own_planted_height():
+    """An ankle (planted 8 cm up) at its planted height with the toe (planted on the floor)
+    5 cm up is a heel stand, not support: it costs the toe's 5 cm. The toe on the floor
+    with the ankle raised (heel-off) costs nothing."""
+    term = SupportTerm([0, 1], np.array([0.08, 0.0]), sigma=0.01, softness=0.001)
+
+    def state(ankle: float, toe: float) -> WindowState:
+        pos = torch.zeros(4, 2, 3, dtype=torch.float64)
+        pos[:, 0, 1], pos[:, 1, 1] = ankle, toe
+        return WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
+                           torch.zeros(3, 2), torch.zeros(3), 30.0)
+
+    assert float(term.energy(state(0.08, 0.05))) == pytest.approx(3 * (0.05 / 0.01) ** 2 / 2, rel=0.05)
+    assert float(term.energy(state(0.15, 0.0))) < 1e-6
+
+
 def test_floor_term_costs_each_joint_below_its_planted_height_and_nothing_above():
     """A joint 2 cm below its planted height costs (0.02 / sigma)^2 / 2 per frame, one at
     or above it nothing: a swinging foot may rise, none may go through the floor."""

@@ -12,7 +12,7 @@ from motionopt import rotations as R
 from motionopt.features import decode, encode, to_model_motion
 from motionopt.metrics import l2p, l2q, npss
 from motionopt.smoothing import butterworth, constant, denoising_family, least_risk, savitzky_golay
-from problems.common import TermSigmas, clamped_rollout, root_features, standard_terms
+from problems.common import TermSigmas, clamped_rollout, planted_contacts, root_features, standard_terms
 from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
 from problems.inbetween import velocity_handoff
@@ -295,3 +295,18 @@ def test_the_support_terms_frames_are_named_and_checked():
         TermSigmas(support=0.005, support_where="floor")
     with pytest.raises(ValueError, match="needs the solve's start"):
         standard_terms(None, tiny_prior(), TermSigmas(support=0.005, support_where="expected"))
+
+
+def test_the_foot_ik_plants_only_feet_near_their_planted_height():
+    """A foot the prior calls planted while it swings 10 cm up is left free; one near the
+    floor keeps the prior's probability, and one near the floor and still is planted
+    whatever the prior says."""
+    t = 40
+    pos = np.zeros((t, 2, 3))
+    pos[:, 0, 0], pos[:, 0, 1] = np.arange(t) * 0.1, 0.10   # joint 0 swings 10 cm up at 3 m/s
+    pos[:, 1, 0] = np.where(np.arange(t) < 20, 0.0, np.arange(t) * 0.1)  # joint 1 still, then sliding 3 m/s
+    pos[:, 1, 1] = 0.01
+    prob = np.full((t, 2), 0.7)
+    contacts = planted_contacts(prob, pos, [0, 1], np.zeros(2), height=0.05, fps=30.0, slow=1.0)
+    assert np.all(contacts[:, 0] == 0.0)
+    assert np.all(contacts[:19, 1] == 1.0) and np.allclose(contacts[21:, 1], 0.7)
