@@ -12,7 +12,10 @@ path, then the MAP solver) and with ``--no-refine`` (the rollout alone). Per 5 s
   (target: at least 90%);
 - whether the hip height stays within the held-out data's 1st-99th percentile;
 
-with the frames per second of the whole run (target: at least 30); skating is "nan" in a
+with, per run, the hip sway (``metrics.hip_sway``: RMS speed of the root across its
+direction of travel, against the held-out walks' range; a root pinned to the path
+sways at a fifth of a walk's, a corner taken dead square far above it) and the frames
+per second of the whole run (target: at least 30); skating is "nan" in a
 segment where no foot is planted (it fails the test). The measures and the
 held-out reference are ``bench/prior.py``'s (``HumanRange``, ``segment_checks``), which
 judges free rollouts the same way. The CMU prior holds no locomotion to seed a walk.
@@ -35,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 import prior as prior_bench  # noqa: E402  (bench/prior.py: the segment measures)
 from tasks import seed_frame  # noqa: E402  (bench/tasks.py: paths drawn where a seed ends)
+from motionopt.metrics import hip_sway  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
 from motionopt.objective import nearest_on_polyline_sq  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
@@ -104,6 +108,9 @@ def main() -> None:
     clips = held_out_clips(prior)
     ref = prior_bench.HumanRange.of(prior, clips)
     seeds = [c for c in clips if "_walk_" in c.name and c.motion.num_frames >= fps][:args.seeds]
+    walk_sway = [float(hip_sway(torch.from_numpy(c.motion.root[:, [0, 2]]), fps)) * 100 for c in clips
+                 if "walk" in c.name]
+    walk_sway = [v for v in walk_sway if np.isfinite(v)]
     rows, passing, t_all = [], {}, time.perf_counter()
     for clip in seeds:
         seed = clip.motion[:int(fps)]
@@ -120,8 +127,9 @@ def main() -> None:
                         ok[key] += good
                     ok["all"] += all(checks)
                     ok["of"] += 1
+                sway = float(hip_sway(torch.from_numpy(r.model_motion.root[seed.num_frames:, [0, 2]]), fps)) * 100
                 rows.append([label, clip.name.split("/")[-1].replace("dataset-1_", "").replace("_001.bvh", ""),
-                             method, f"{rate:.0f}", " ".join(f"{g['dist']:.1f}" for g in segs),
+                             method, f"{rate:.0f}", f"{sway:.1f}", " ".join(f"{g['dist']:.1f}" for g in segs),
                              " ".join(f"{g['skating']:.1f}" for g in segs),
                              " ".join(f"{100 * g['toe']:.0f}" for g in segs),
                              f"{sum(g['hips'] for g in segs)}/{len(segs)}"])
@@ -129,8 +137,10 @@ def main() -> None:
           f"({args.prior.name}); per {SEGMENT:g} s segment: root-to-path distance (cm; target <= 3), skating over "
           f"the held-out mocap's {ref.skating:.3f} m/s (target <= 1.2), lowest foot within 3 cm of its resting "
           f"height (% of frames; target >= 90), hip height within {ref.hip_low:.2f}-{ref.hip_high:.2f} m (segments); "
-          f"frames/s of the whole run (target >= 30); {time.perf_counter() - t_all:.0f} s"]
-    lines += format_table(["path", "seed", "method", "fr/s", "dist cm per segment", "skating / mocap",
+          f"frames/s of the whole run (target >= 30); hip sway of the run (cm/s across the direction of travel; "
+          f"{len(walk_sway)} held-out walks: {min(walk_sway):.1f}-{max(walk_sway):.1f}, median "
+          f"{np.median(walk_sway):.1f}); {time.perf_counter() - t_all:.0f} s"]
+    lines += format_table(["path", "seed", "method", "fr/s", "sway cm/s", "dist cm per segment", "skating / mocap",
                            "lowest foot down %", "hips in range"], rows)
     lines += [f"   {method}: of {ok['of']} segments, distance {ok['dist']}, skating {ok['skating']}, "
               f"foot down {ok['toe']}, hips {ok['hips']}; all four {ok['all']}" for method, ok in passing.items()]

@@ -135,7 +135,9 @@ class PathTerm(FrameMasked, Term):
 
     With ``targets`` (N, 2) per global frame (timed mode) each frame is pulled to its own
     point; without, to the nearest point of the polyline (the MAP path term of
-    Wang et al. 2019, eq. 18). ``frames`` limits which global frames count.
+    Wang et al. 2019, eq. 18). ``frames`` limits which global frames count. Within
+    ``width`` metres of the path the root moves freely (the sway of a walk): only the
+    distance beyond it costs.
     """
 
     path: np.ndarray
@@ -143,6 +145,7 @@ class PathTerm(FrameMasked, Term):
     targets: np.ndarray | None = None
     mask: np.ndarray | None = None
     name: str = "path"
+    width: float = 0.0
 
     def __post_init__(self) -> None:
         self.path = np.asarray(self.path, dtype=np.float64)
@@ -162,6 +165,8 @@ class PathTerm(FrameMasked, Term):
             d2 = (xz - w["target"]).pow(2).sum(-1)
         else:
             d2 = nearest_on_polyline_sq(xz, w["path"])
+        if self.width > 0:
+            d2 = torch.relu(torch.sqrt(d2 + 1e-12) - self.width).pow(2)
         return _gaussian(_masked(d2, w["mask"]), self.sigma).sum(-1)
 
 

@@ -7,6 +7,7 @@ per-frame vectors of ``motionopt.features`` (``spec`` and ``normalizer`` say how
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import torch
@@ -17,6 +18,28 @@ from .features import FeatureSpec
 from .skeleton import Skeleton
 
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+class Steer(Protocol):
+    """What a rollout does to new frame ``t`` (normalised (..., D), drawn after ``last``)
+    before it becomes history: returns the frame kept."""
+
+    def __call__(self, t: int, last: Tensor, drawn: Tensor) -> Tensor: ...
+
+
+@dataclass
+class ChannelClamp:
+    """A ``Steer`` that sets feature ``channels`` of new frame t to ``values[t]``
+    (normalised, (n_frames, K)): the prior draws the rest of each frame knowing them (the
+    pose for a given root path)."""
+
+    channels: slice
+    values: Tensor
+
+    def __call__(self, t: int, last: Tensor, drawn: Tensor) -> Tensor:
+        out = drawn.clone()
+        out[..., self.channels] = self.values[t].to(drawn)
+        return out
 
 
 def gaussian_nll(x: Tensor, mean: Tensor, log_std: Tensor, mask: Tensor | None = None) -> Tensor:
@@ -100,17 +123,16 @@ class MotionPrior(Protocol):
 
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
                temperature: float = 1.0, noise: Tensor | None = None, plant: bool = True,
-               clamp: tuple[slice, Tensor] | None = None) -> Tensor:
+               steer: Steer | None = None) -> Tensor:
         """Roll out ``n_frames`` new frames (..., n_frames, D) after ``context (..., C, D)``.
 
         ``noise (..., n_frames, P)``, when given, replaces the standard normal draws of the
         pose dimensions (a rollout is then a deterministic function of it: what the
         particle swarm searches over). With ``plant`` the root of each new frame moves so
         that the contact joints the prior calls planted stay still (no foot sliding);
-        callers that set the root themselves turn it off. ``clamp = (channels, values)``
-        sets those feature channels of new frame t to ``values[t]`` (normalised, (n_frames,
-        K)) before it becomes history: the prior draws the rest of each frame knowing them
-        (the pose for a given root path)."""
+        callers that set the root themselves turn it off. ``steer`` changes each new frame
+        before it becomes history (``Steer``; e.g. ``ChannelClamp`` sets its root channels
+        to a path's): the prior draws the frames after it knowing the change."""
 
 
 @runtime_checkable

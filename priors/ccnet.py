@@ -29,7 +29,7 @@ from torch import Tensor, nn
 from motionopt import rotations as R
 from motionopt.dataset import Normalizer
 from motionopt.features import FeatureSpec, contact_heights, planted_root_step
-from motionopt.prior import gaussian_nll, scoring_log_std, student_nll
+from motionopt.prior import Steer, gaussian_nll, scoring_log_std, student_nll
 from motionopt.skeleton import Skeleton
 
 from .degrade import degraded_batch
@@ -371,7 +371,7 @@ class CCNetPrior(nn.Module):
     @torch.no_grad()
     def sample(self, context: Tensor, n_frames: int, generator: torch.Generator | None = None,
                temperature: float = 1.0, noise: Tensor | None = None, plant: bool = True,
-               clamp: tuple[slice, Tensor] | None = None) -> Tensor:
+               steer: Steer | None = None) -> Tensor:
         """Roll out ``n_frames`` after ``context`` (``MotionPrior.sample``), one frame of
         network work per new frame (``_advance``). With ``plant`` the root step of each new
         frame keeps planted contact joints still on the ground plane
@@ -401,8 +401,8 @@ class CCNetPrior(nn.Module):
                 step = planted_root_step(norm.denormalize(last), norm.denormalize(nxt), self.spec,
                                          self.skeleton, rest)
                 nxt = norm.normalize(step).to(nxt)
-            if clamp is not None:
-                nxt[..., clamp[0]] = clamp[1][len(new)].to(nxt)
+            if steer is not None:
+                nxt = steer(len(new), last, nxt)
             new.append(nxt)
             last = nxt
         out = torch.stack(new, dim=1)

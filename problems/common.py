@@ -15,6 +15,7 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, contact_labels, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
+from motionopt.prior import ChannelClamp
 from motionopt.objective import (ContactTerm, FloorTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm,
                                  SupportTerm, Term)
 from motionopt.solver import MAPResult, Problem, SolverOptions, solve
@@ -343,7 +344,7 @@ def clamped_rollout(prior, context: torch.Tensor, clamp_raw: torch.Tensor, chann
     norm = prior.normalizer
     clamp = (clamp_raw.float() - norm.mean[channels].float()) / norm.std[channels].float()
     return prior.sample(context.float(), len(clamp), generator=generator, temperature=temperature, plant=False,
-                        clamp=(channels, clamp))
+                        steer=ChannelClamp(channels, clamp))
 
 
 def contact_probabilities(prior, x: torch.Tensor) -> np.ndarray:

@@ -32,10 +32,26 @@ JOIN_SECONDS = 0.5
 JOINED = 0.01
 #: Distance (m) from the path beyond which the result is said to leave it.
 PATH_TOLERANCE = 0.1
+#: Seconds (a Gaussian's sigma) over which the timed targets are smoothed: corners are
+#: rounded and stops eased as people walk them, not taken dead square.
+ROUNDING_SECONDS = 0.15
 #: Units a path is often written in by mistake for metres, tried in this order to explain a pace no one runs.
 UNIT_MISTAKES = {"cm": "centimetres", "mm": "millimetres"}
 #: Most points a PATH.csv may hold: more than 10 minutes at 8 m/s with a point every 5 cm.
 MAX_PATH_POINTS = 100_000
+
+
+def rounded(points: np.ndarray, sigma: float) -> np.ndarray:
+    """``points`` (K, 2) smoothed over ``sigma`` frames, each end held where it is: the
+    points are extended past both ends by reflection through the end point, which keeps
+    a straight stretch straight and the ends in place."""
+    if len(points) < 3 or sigma <= 0:
+        return points
+    pad = min(int(4 * sigma) + 1, len(points) - 1)
+    head = 2 * points[0] - points[pad:0:-1]
+    tail = 2 * points[-1] - points[-2:-pad - 2:-1]
+    smooth = gaussian_filter1d(np.concatenate((head, points, tail)), sigma, axis=0, mode="nearest")
+    return smooth[pad:pad + len(points)]
 
 
 def polyline_lengths(path: np.ndarray) -> np.ndarray:
@@ -75,33 +91,40 @@ class PathFollow:
     ``speed`` (m/s; default the seed's recent speed, at least 1 m/s). ``seconds`` of new
     motion (default: until the path's end at that timing; at most ``MAX_NEW_SECONDS``).
 
-    The solve starts from a rollout: the root channels of every new frame are clamped to
-    the path (``root_channels``: on the path at its timing, facing along it as the seed
-    faced its way of travel) and the prior rolls out the rest of each frame
-    (``clamped_rollout``, at ``options.temperature_for(prior)``), each second the best of
+    The timed targets are first smoothed over ``ROUNDING_SECONDS`` (``rounded``): corners
+    are rounded and stops eased as people walk them. The solve starts from a rollout
+    along them: each new frame gets the path's yaw change (facing along it as the seed
+    faced its way of travel) and forward step, and sideways the step its planted feet
+    give, high-passed (``rollout.SwayingPath``; with ``sway`` 0, the root channels are
+    clamped to the path, ``root_channels``), and the prior rolls out the rest of each
+    frame (at ``options.temperature_for(prior)``), each second the best of
     ``candidates`` (``rollout.chosen_rollout``). With ``refine`` (the default) the MAP
-    solver then solves every new frame, root included, under the prior, the path
-    (``sigma_path`` metres from it; ``sigma_timing`` from the point its timing gives),
-    planted feet (``ContactTerm``), feet that glide near the floor (``SkatingTerm``), the
-    lowest foot on the floor where the prior's contact head expects a foot down
-    (``SupportTerm``; a run's flight and a dancer's jump stay free) and no foot through it
-    (``FloorTerm``).
-    Held-out Bandai walks (bench/paths.py) showed why each is as it is: without the
-    skating term the solved feet skimmed the floor at walking speed (skating 1.3-2.3 times
-    mocap's per 5 s); with it but without the support term the solve lifted the whole
-    body until the lowest foot floated 6-12 cm above the floor (median per second over a
-    10 s square; the rollout it started from: 2-5 cm) and left the leg IK to put the feet
-    back: the energy at the result was below that of the same motion lowered to the floor
-    (-712 against 12,593 nats, 10,000 of them skating), an objective that prefers to float,
-    not a search failure. With the support term alone the lowest foot went more than 3 cm
-    through the floor in up to 8% of frames, hence the floor term. At ``sigma_path`` 2 cm
-    the root drifted 5-10 cm off a square, and at 1 cm 3-4 cm off a straight line,
-    although the same poses with the root on the path scored lower
-    (``solver.energies_at``): a search failure in 30 L-BFGS iterations per window, which
-    the steeper 5 mm term pulls back. Windows of 56 frames overlapping by 12
-    (the solver's default: 34 by 17) run 30-35 frames per second on one thread against
-    24-34 at 40 by 12 (all four measures of bench/paths.py in 44 of 48 segments against
-    43). Without ``refine`` the rollout, its feet planted, is the result.
+    solver then solves every new frame, root included, under the prior, the rounded
+    path (``sigma_path`` metres beyond ``sway`` metres from it, within which the root
+    sways freely; ``sigma_timing`` from the point its timing gives), planted feet
+    (``ContactTerm``), feet that glide near the floor (``SkatingTerm``), the lowest foot
+    on the floor where the prior's contact head expects a foot down (``SupportTerm``; a
+    run's flight and a dancer's jump stay free) and no foot through it (``FloorTerm``).
+    Held-out Bandai walks (bench/paths.py) showed why each is as it is: with the root
+    clamped to the drawn path it swayed at 1.5-3 cm/s across it (``metrics.hip_sway``;
+    the held-out walks 5-14), took a square's corners dead square (75-80 cm/s), and its
+    feet slid under it (skating within 1.2 times mocap's in 47 of 48 segments; with the
+    sway and rounding 48, and the root 0.7-2.7 cm from the drawn path per 5 s segment
+    against 0.1-2.3). A free band of 2.5 cm let the solve drift 3-4 cm off a square.
+    Without the skating term the solved feet skimmed the floor at walking speed (skating
+    1.3-2.3 times mocap's per 5 s); with it but without the support term the solve lifted
+    the whole body until the lowest foot floated 6-12 cm above the floor (median per
+    second over a 10 s square; the rollout it started from: 2-5 cm) and left the leg IK
+    to put the feet back: the energy at the result was below that of the same motion
+    lowered to the floor (-712 against 12,593 nats, 10,000 of them skating), an
+    objective that prefers to float, not a search failure. With the support term alone
+    the lowest foot went more than 3 cm through the floor in up to 8% of frames, hence
+    the floor term. At ``sigma_path`` 2 cm the root drifted 5-10 cm off a square, and at
+    1 cm 3-4 cm off a straight line, although the same poses with the root on the path
+    scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
+    window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by
+    12 (the solver's default: 34 by 17) run 43-53 frames per second on one thread.
+    Without ``refine`` the rollout, its feet planted, is the result.
 
     A pace faster than a person moves (``MAX_HUMAN_SPEED``, along the path or joining it
     from the seed's end) is refused before any synthesis (``check_pace``): such a path is
@@ -118,6 +141,7 @@ class PathFollow:
     seconds: float | None = None
     sigma_path: float = 0.005
     sigma_timing: float = 0.3
+    sway: float = 0.01
     sigmas: TermSigmas = field(default_factory=lambda: TermSigmas(skating=SKATING_SIGMA, support=SUPPORT_SIGMA,
                                                                   support_where="expected", floor=FLOOR_SIGMA))
     options: SolverOptions = field(default_factory=lambda: SolverOptions(window=56, overlap=12))
@@ -216,6 +240,8 @@ class PathFollow:
         off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
         fade = smoothstep(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1))[:, None]
         tgt = tgt + off * fade
+        walked = rounded(np.concatenate((prep.model.root[-1:, [0, 2]], tgt)), ROUNDING_SECONDS * fps)
+        tgt = walked[1:]
         self.check_pace(speed, prep.model.root[-1, [0, 2]], float(np.linalg.norm(off)))
         n_seed = len(prep.x)
         n = n_seed + n_new
@@ -226,7 +252,7 @@ class PathFollow:
                              prep.model.skeleton, prep.planted_height, n_new, self.candidates,
                              self.options.temperature_for(prior), gen,
                              torch.from_numpy(self.root_channels(prep, tgt, fps)),
-                             lift_limit(seed_feet, prep.planted_height))
+                             lift_limit(seed_feet, prep.planted_height), sway=self.sway > 0)
         x = torch.cat((prep.x, new))
         model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         result = None
@@ -238,7 +264,7 @@ class PathFollow:
             joined[n_seed:] = fade[:, 0] * np.linalg.norm(off) < JOINED
             full_targets = np.zeros((n, 2))
             full_targets[n_seed:] = tgt
-            terms = [PathTerm(self.path, self.sigma_path, mask=joined, name="path"),
+            terms = [PathTerm(walked, self.sigma_path, mask=joined, name="path", width=self.sway),
                      PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=free, name="path_timing")]
             terms += standard_terms(prep, prior, self.sigmas, x)
             result, _ = run(prior, prep, x, free, terms, replace(self.options, pso=None))
@@ -262,7 +288,8 @@ class PathFollow:
             "frames_per_second": n_new / max(seconds, 1e-9),
         }
         warnings = warned(distance_warnings(dist))
-        settings = {"sigma_path": self.sigma_path, "speed": speed, "new_seconds": n_new / fps, "refine": self.refine,
+        settings = {"sigma_path": self.sigma_path, "sway": self.sway, "speed": speed, "new_seconds": n_new / fps,
+                    "refine": self.refine,
                     "temperature": self.options.temperature_for(prior)}
         return judged(TaskResult(motion, model, result, metrics, settings, warnings), prior, prep.start.ground)
 

@@ -2,10 +2,13 @@
 whose feet meet the floor best, continued from (the start the MAP solver refines)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
+from torch import Tensor
 
-from motionopt.features import RootStart, advance, decode_positions
+from motionopt.features import RootStart, advance, decode_positions, planted_root_step
 from motionopt.skeleton import Skeleton
 
 from .common import clamped_rollout
@@ -21,6 +24,70 @@ AIRBORNE_COST = 1.0
 #: other foot 85 cm up; held-out Bandai walks lift their feet 9-17 cm). In the held-out
 #: paths checked, no candidate second reached the limit.
 LIFT_COST = 10.0
+
+
+#: Time constant (s) of ``SwayingPath``: sideways root motion slower than this is
+#: taken out, faster (a walk's sway, one stride in about a second) kept.
+SWAY_SECONDS = 0.3
+#: Share of each planted sideways step ``SwayingPath`` takes in (an exponential mean):
+#: the steps of sampled legs jitter from frame to frame.
+STEP_SMOOTHING = 0.4
+#: Speed (m/s) of the path below which ``SwayingPath`` takes sideways as the body's left-right.
+MOVING = 0.2
+
+
+@dataclass
+class SwayingPath:
+    """A ``Steer`` that walks a rollout along a path, with the hip sway of real walking.
+
+    Each new frame t gets the path's yaw change and forward step (``path_raw[t]``,
+    unnormalised root features (N, 3), ``root_features``), and sideways the step that
+    keeps its planted feet still (``features.planted_root_step``; contact joints within
+    the contact height of ``rest`` (C,), their heights above the ground when planted),
+    high-passed: the running mean of those steps over ``SWAY_SECONDS`` is taken out and
+    the distance from the path decays over the same time. A root clamped to the path
+    moved sideways at 1.5-3 cm/s (RMS, held-out Bandai walks along drawn paths) against
+    7-16 cm/s in the held-out walks themselves, and the stance foot slid under it.
+
+    ``first`` is the path frame of the next rollout's frame 0; ``offset`` and ``drift``
+    (per rollout, m and m per frame) carry the sideways state from one rollout to the
+    next (``continue_from``)."""
+
+    prior: object
+    path_raw: Tensor
+    rest: Tensor
+    first: int = 0
+    offset: Tensor | None = None
+    drift: Tensor | None = None
+    step: Tensor | None = None
+
+    def __call__(self, t: int, last: Tensor, drawn: Tensor) -> Tensor:
+        norm, spec = self.prior.normalizer, self.prior.spec
+        prev, raw = norm.denormalize(last.double()), norm.denormalize(drawn.double())
+        path = self.path_raw[self.first + t].to(raw)
+        raw[..., 2] = path[2]
+        planted = planted_root_step(prev, raw, spec, self.prior.skeleton, self.rest.to(raw).expand(*raw.shape[:-1], -1))
+        step = path[:2]
+        length = float(step.norm())
+        side = (torch.stack((step[1], -step[0])) / length if length * spec.fps > MOVING
+                else torch.tensor([1.0, 0.0], dtype=raw.dtype))
+        sideways = planted[..., :2] @ side
+        if self.offset is None:
+            self.offset, self.drift, self.step = (torch.zeros_like(sideways) for _ in range(3))
+        self.step = self.step + STEP_SMOOTHING * (sideways - self.step)
+        rate = 1.0 / (SWAY_SECONDS * spec.fps)
+        self.drift = self.drift + rate * (self.step - self.drift)
+        kept = self.step - self.drift - rate * self.offset
+        self.offset = self.offset + kept
+        raw[..., :2] = step + kept[..., None] * side
+        return norm.normalize(raw).to(drawn)
+
+    def continue_from(self, rollout: int, frames: int, count: int) -> None:
+        """Go on from rollout ``rollout``'s state after ``frames`` frames, for ``count`` rollouts."""
+        self.first += frames
+        self.offset = self.offset[rollout].expand(count).clone()
+        self.drift = self.drift[rollout].expand(count).clone()
+        self.step = self.step[rollout].expand(count).clone()
 
 
 def lift_limit(feet: np.ndarray, planted_height: np.ndarray) -> float:
@@ -53,15 +120,16 @@ def glide_cost(feet: torch.Tensor, planted_height: np.ndarray, fps: float, max_l
 def chosen_rollout(prior, history: torch.Tensor, state: RootStart, last_feet: np.ndarray, skeleton: Skeleton,
                    planted_height: np.ndarray, n_frames: int, candidates: int, temperature: float,
                    generator: torch.Generator, clamp_raw: torch.Tensor | None = None,
-                   max_lift: float | None = None) -> torch.Tensor:
+                   max_lift: float | None = None, sway: bool = False) -> torch.Tensor:
     """``n_frames`` new frames (n_frames, D), normalised, after ``history (T, D)``: rolled
     out a second at a time, each second the one of ``candidates`` continuations of the
     last with the least ``glide_cost``. ``state`` is the root state at history's last
     frame, ``last_feet (C, 3)`` its contact joints' world positions (on ``skeleton``, the
     prior's), ``planted_height (C,)`` their heights when planted. ``clamp_raw (n_frames, 3)``,
     when given, sets the root channels of the new frames (unnormalised; ``clamped_rollout``);
-    otherwise the prior rolls out its own root, unplanted. ``max_lift``: ``glide_cost``'s
-    (``lift_limit`` of the context).
+    otherwise the prior rolls out its own root, unplanted. With ``sway`` the root follows
+    those channels with the sway of the legs (``SwayingPath``). ``max_lift``:
+    ``glide_cost``'s (``lift_limit`` of the context).
 
     Chosen over whole rollouts, one bad second (a leg kicked up, a foot dragged) costs a
     second, not the clip: of 8 whole 30 s rollouts along a path the least sliding was one
@@ -70,18 +138,24 @@ def chosen_rollout(prior, history: torch.Tensor, state: RootStart, last_feet: np
     chunk = max(int(round(spec.fps)), 1)
     cidx = spec.contact_indices()
     before = torch.as_tensor(last_feet, dtype=torch.float64).expand(candidates, 1, len(cidx), 3)
+    steer = None
+    if clamp_raw is not None and sway:
+        rest = torch.as_tensor(np.asarray(planted_height) - state.ground)
+        steer = SwayingPath(prior, clamp_raw.double(), rest)
     pieces = []
     for a in range(0, n_frames, chunk):
         ctx = history[-prior.receptive_field:].expand(candidates, -1, -1)
         k = min(chunk, n_frames - a)
-        if clamp_raw is None:
-            new = prior.sample(ctx.float(), k, generator=generator, temperature=temperature, plant=False)
+        if clamp_raw is None or steer is not None:
+            new = prior.sample(ctx.float(), k, generator=generator, temperature=temperature, plant=False, steer=steer)
         else:
             new = clamped_rollout(prior, ctx, clamp_raw[a:a + k], slice(0, 3), temperature, generator)
         raw = norm.denormalize(new.double())
         with torch.no_grad():
             feet = decode_positions(raw, spec, skeleton, state)[..., cidx, :]
         best = int(torch.argmin(glide_cost(torch.cat((before, feet), dim=1), planted_height, spec.fps, max_lift)))
+        if steer is not None:
+            steer.continue_from(best, k, candidates)
         state = advance(state, raw[best], spec)
         before = feet[best, -1:].expand(candidates, 1, len(cidx), 3)
         history = torch.cat((history, new[best]))

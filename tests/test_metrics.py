@@ -69,3 +69,17 @@ def test_planted_heights_follow_the_ground(clip):
     # floating half a metre above where the feet rest: never planted, skating undefined
     assert math.isnan(metrics.foot_skating(pos + torch.tensor([0.0, 0.5, 0.0], dtype=pos.dtype), fps, feet,
                                            rest=rest))
+
+
+def test_hip_sway_is_the_sideways_speed_of_a_walk_and_zero_on_a_straight_line():
+    t = torch.arange(300, dtype=torch.float64) / 30
+    amplitude, f = 0.03, 0.9
+    line = torch.stack((torch.zeros_like(t), 1.2 * t), -1)
+    swaying = line + torch.stack((amplitude * torch.sin(2 * math.pi * f * t), torch.zeros_like(t)), -1)
+    # the sway's RMS speed, through the 0.1 s smoothing, less what of it the 0.4 s
+    # direction of travel still follows
+    response = [math.exp(-0.5 * (2 * math.pi * f * sigma) ** 2) for sigma in (0.1, 0.4)]
+    expected = 2 * math.pi * f * amplitude / math.sqrt(2) * (response[0] - response[1])
+    assert float(metrics.hip_sway(swaying, 30.0)) == pytest.approx(expected, rel=0.05)
+    assert float(metrics.hip_sway(line, 30.0)) < 1e-9
+    assert math.isnan(float(metrics.hip_sway(torch.zeros(30, 2, dtype=torch.float64), 30.0)))    # standing

@@ -76,6 +76,7 @@ def terms():
     return {
         "path nearest-point": PathTerm(path, sigma=0.05),
         "path timed": PathTerm(path, sigma=0.3, targets=timed, mask=mask),
+        "path with a free band": PathTerm(path, sigma=0.05, width=0.02),
         "pose fidelity": PoseFidelityTerm(root_t, rot_t, 0.02, 0.05, mask=mask),
         "pose fidelity, some joints": PoseFidelityTerm(None, rot_t, 0.02, 0.05, joints=[0, 3, 7]),
         "pose fidelity, one tight keyframe": PoseFidelityTerm(root_t, rot_t, 0.005, 0.01, mask=keyframe),
@@ -90,6 +91,23 @@ def terms():
         "floor": FloorTerm(feet, foot_heights + 0.01),
         "smoothness, one sigma per joint": SmoothnessTerm(list(np.linspace(4.0, 20.0, sk.num_joints))),
     }
+
+
+def test_the_path_terms_free_band_costs_only_the_distance_beyond_it():
+    """Within ``width`` of the path the root sways freely; 3 cm off with a 2 cm band costs
+    what 1 cm off costs without one."""
+    path = np.array([[0.0, 0.0], [0.0, 10.0]])
+
+    def energy(term: PathTerm, off: float) -> float:
+        root = torch.zeros(1, 3, dtype=torch.float64)
+        root[0, 0], root[0, 2] = off, 5.0
+        state = WindowState(np.arange(1), 0, torch.zeros(1, 4), torch.zeros(0), root, torch.zeros(1, 2, 3),
+                            torch.zeros(1, 2), torch.zeros(1), 30.0)
+        return float(term.energy(state))
+
+    banded, plain = PathTerm(path, sigma=0.01, width=0.02), PathTerm(path, sigma=0.01)
+    assert energy(banded, 0.015) == pytest.approx(0.0, abs=1e-9)
+    assert energy(banded, -0.03) == pytest.approx(energy(plain, 0.01), rel=1e-4) == pytest.approx(0.5, rel=1e-4)
 
 
 def test_per_joint_acceleration_sigmas_weigh_each_joint_alone():

@@ -10,7 +10,7 @@ import torch
 from motionopt.metrics import foot_skating
 from motionopt.objective import nearest_on_polyline_sq
 from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
-from problems.path_follow import PathFollow
+from problems.path_follow import PathFollow, rounded
 
 from clips import shared_excerpt
 
@@ -44,7 +44,7 @@ def test_the_solved_walk_stays_on_the_path_and_its_feet_glide_less_than_the_roll
     n_seed = 30
     root = solve.model_motion.root[n_seed:, [0, 2]]
     dist = np.sqrt(nearest_on_polyline_sq(torch.from_numpy(root), torch.from_numpy(path)).numpy())
-    assert dist.mean() < 0.015 and solve.metrics["path_distance_cm_mean"] == pytest.approx(dist.mean() * 100)
+    assert dist.mean() < 0.03 and solve.metrics["path_distance_cm_mean"] == pytest.approx(dist.mean() * 100)
     cidx = prior.spec.contact_indices()
     glide = {name: float(foot_skating(torch.from_numpy(r.model_motion.positions()[n_seed:]), 30.0, cidx))
              for name, r in (("solve", solve), ("rollout", rollout))}
@@ -52,3 +52,27 @@ def test_the_solved_walk_stays_on_the_path_and_its_feet_glide_less_than_the_roll
     # the root moves as a walk does, not pinned to constant steps: its speed varies along the step cycle
     speed = np.linalg.norm(np.diff(root, axis=0), axis=1) * 30
     assert 0.6 < speed.mean() < 1.0 and speed.std() > 0.02
+
+
+def test_the_solved_walk_sways_sideways_as_a_walk_does(solved):
+    """The hips move from side to side across the path (held-out walks: 7-16 cm/s RMS
+    sideways against the direction of travel), not pinned to it (1.5-3 cm/s before)."""
+    prior, path, results = solved
+    root = results[True].model_motion.root[30:, [0, 2]]
+    velocity = np.gradient(root, axis=0) * 30
+    travel = np.gradient(path, axis=0)
+    nearest = np.argmin(np.linalg.norm(root[:, None] - path[None], axis=-1), axis=1)
+    along = travel[nearest] / np.linalg.norm(travel[nearest], axis=1, keepdims=True)
+    sideways = velocity[:, 0] * along[:, 1] - velocity[:, 1] * along[:, 0]
+    assert np.sqrt((sideways ** 2).mean()) > 0.04
+
+
+def test_rounded_paths_keep_straight_stretches_and_ends_and_cut_corners_a_little():
+    line = np.stack((np.arange(20) * 0.03, np.zeros(20)), 1)
+    assert np.allclose(rounded(line, 4.5), line)
+    corner = np.concatenate((np.stack((np.arange(30) * 0.027, np.zeros(30)), 1),
+                             np.stack((np.full(30, 0.81), np.arange(30) * 0.027), 1)))
+    r = rounded(corner, 4.5)
+    assert np.allclose(r[[0, -1]], corner[[0, -1]])
+    cut = np.linalg.norm(r[29] - corner[29])
+    assert 0.02 < cut < 0.08

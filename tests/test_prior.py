@@ -9,7 +9,7 @@ import torch
 
 from motionopt.features import planted_root_step
 from priors.checkpoint import CheckpointError, check_compatible, load_prior, read_checkpoint, save_prior
-from motionopt.prior import MotionPrior
+from motionopt.prior import ChannelClamp, MotionPrior
 from priors.score import checked_features
 
 from priorkit import cmu_clips, features, fresh_prior, tiny_prior
@@ -355,7 +355,7 @@ def test_clamped_channels_are_set_in_every_new_frame_and_steer_the_rest(prior, x
     ctx = x[:10]
     values = torch.linspace(-2, 2, 8)[:, None].expand(8, 10)
     free = prior.sample(ctx, 8, temperature=0.0, plant=False)
-    clamped = prior.sample(ctx, 8, temperature=0.0, plant=False, clamp=(slice(0, 10), values))
+    clamped = prior.sample(ctx, 8, temperature=0.0, plant=False, steer=ChannelClamp(slice(0, 10), values))
     assert torch.equal(clamped[:, :10], values)
     # the first frame is drawn before any clamped frame is history; later ones know them
     assert torch.allclose(clamped[0, 10:], free[0, 10:], atol=1e-6)

@@ -44,7 +44,11 @@ def test_lift_limit_follows_the_contexts_own_lift():
     assert lift_limit(np.zeros((1, 2, 3)), np.zeros(2)) == pytest.approx(0.05)   # standing still
 
 
-def test_chosen_rollout_keeps_the_clamped_root_across_its_seconds():
+@pytest.fixture(scope="module")
+def walk_on_a_path():
+    """The tiny prior, a clip's first 20 frames (normalised), the root state at frame 19,
+    its contact joints there and when planted, and 45 frames of root features along a
+    gently turning path from where the clip's root is at frame 19 (its points (46, 2))."""
     prior = tiny_prior()
     model = to_model_motion(bvh.load(sorted(DATA.glob("cmu-*.bvh"))[0]), prior.spec)
     raw, start = encode(model, prior.spec)
@@ -55,11 +59,30 @@ def test_chosen_rollout_keeps_the_clamped_root_across_its_seconds():
     yaw = state.yaw + np.linspace(0.0, 0.4, n + 1)
     clamp = torch.from_numpy(root_features(pts, yaw))
     cidx = prior.spec.contact_indices()
-    new = chosen_rollout(prior, x, state, model.positions()[19, cidx], prior.skeleton,
-                         np.percentile(model.positions()[:, cidx, 1], 5, axis=0), n, 3, 0.5,
+    return (prior, x, state, model.positions()[19, cidx], np.percentile(model.positions()[:, cidx, 1], 5, axis=0),
+            clamp, pts)
+
+
+def test_chosen_rollout_keeps_the_clamped_root_across_its_seconds(walk_on_a_path):
+    prior, x, state, last_feet, planted, clamp, pts = walk_on_a_path
+    n = len(clamp)
+    new = chosen_rollout(prior, x, state, last_feet, prior.skeleton, planted, n, 3, 0.5,
                          torch.Generator().manual_seed(0), clamp)
     assert new.shape == (n, x.shape[1])
     back = prior.normalizer.denormalize(new.double())
     assert torch.allclose(back[:, :3], clamp, atol=1e-5)
     _, root = decode(back, prior.spec, state)
     assert np.allclose(root[:, [0, 2]].numpy(), pts[1:], atol=1e-4)
+
+
+def test_a_swaying_rollout_turns_and_advances_with_the_path_and_sways_about_it(walk_on_a_path):
+    """With ``sway`` the yaw changes are the path's, the root moves sideways as the legs
+    take it (not on the path exactly) and stays within a few centimetres of it."""
+    prior, x, state, last_feet, planted, clamp, pts = walk_on_a_path
+    new = chosen_rollout(prior, x, state, last_feet, prior.skeleton, planted, len(clamp), 3, 0.5,
+                         torch.Generator().manual_seed(0), clamp, sway=True)
+    back = prior.normalizer.denormalize(new.double())
+    assert torch.allclose(back[:, 2], clamp[:, 2], atol=1e-5)
+    _, root = decode(back, prior.spec, state)
+    off = np.linalg.norm(root[:, [0, 2]].numpy() - pts[1:], axis=1)
+    assert 0.002 < off.mean() and off.max() < 0.1
