@@ -361,15 +361,17 @@ class SkatingTerm(FootTerm):
 @dataclass
 class SupportTerm(FrameMasked, FootTerm):
     """Some foot stands on the floor: the height of the lowest contact joint (a soft
-    minimum over ``joints``, ``softness`` metres) above the floor, the lowest planted
-    height, where positive, with sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a
-    body whose root is free (prefix completion) from rising so that no foot is near the
-    floor to glide.
+    minimum over ``joints``, ``softness`` metres) above the floor, where positive, with
+    sigma ``sigma`` (m). Beside ``SkatingTerm`` it keeps a body whose root is free
+    (prefix completion) from rising so that no foot is near the floor to glide.
 
-    The floor is one height for every joint, not each joint's own planted height: so
-    measured, an ankle at its planted height counted as support, and path following from
-    a standing start stood on one heel with the toes 4-6 cm up for half a second
-    (held-out Bandai walks, ``bench/paths.py``)."""
+    With ``from_floor`` every joint is measured from one floor, the lowest planted
+    height; without, each from its own planted height, so that an ankle at its planted
+    height counts as support with the toes up. Path following needs the floor: from a
+    standing start it stood on one heel with the toes 4-6 cm up for half a second (44 of
+    48 segments of ``bench/paths.py`` pass, 47 from the floor). Prefix completion does
+    not: runs held to the floor by their toes skated more (``bench/tasks.py`` 4b: 38 of 45
+    seconds in range, 41 measured per joint)."""
 
     sigma: float = 0.03
     softness: float = 0.01
@@ -379,6 +381,7 @@ class SupportTerm(FrameMasked, FootTerm):
     #: Only in frames where some contact joint counts as planted (``WindowState.contacts``:
     #: the kinematics of the solve's start).
     planted_only: bool = False
+    from_floor: bool = True
     name: str = "support"
 
     def __post_init__(self) -> None:
@@ -388,7 +391,7 @@ class SupportTerm(FrameMasked, FootTerm):
 
     def energy(self, state: WindowState) -> Tensor:
         planted = self.window_tensors(state.frames, state.positions.dtype)["planted"]
-        above_floor = self.heights(state) + planted - planted.min()
+        above_floor = self.heights(state) + (planted - planted.min() if self.from_floor else 0.0)
         lowest = -self.softness * torch.logsumexp(-above_floor / self.softness, dim=-1)
         e = _gaussian(torch.relu(lowest).pow(2), self.sigma)
         if self.planted_only:

@@ -166,6 +166,9 @@ class TermSigmas:
     #: where the solve's start plants a foot ("planted") or those where the prior's contact
     #: head, run over the start, expects one ("expected", ``support_frames``)
     support_where: str = "all"
+    #: the support term measures every contact joint from the floor, not from its own
+    #: planted height (``SupportTerm.from_floor``)
+    support_from_floor: bool = True
     #: m of a contact joint below its planted height (``FloorTerm``); None: no floor term
     floor: float | None = None
 
@@ -185,10 +188,11 @@ def gap_sigmas() -> TermSigmas:
 
 def completion_sigmas() -> TermSigmas:
     """The terms' sigmas of prefix completion's solve: accelerations, feet gliding within
-    ``SKATING_BAND``, the lowest foot on the floor (``SUPPORT_SIGMA``) and no foot through
-    it (``FLOOR_SIGMA``)."""
+    ``SKATING_BAND``, the lowest foot on the floor (``SUPPORT_SIGMA``, each joint measured
+    from its own planted height: ``SupportTerm.from_floor`` has the figures) and no foot
+    through it (``FLOOR_SIGMA``)."""
     return TermSigmas(smoothness=ACCELERATION_SIGMA, skating=SKATING_SIGMA, support=SUPPORT_SIGMA,
-                      support_where="expected", floor=FLOOR_SIGMA)
+                      support_where="expected", support_from_floor=False, floor=FLOOR_SIGMA)
 
 
 def join_terms(root: np.ndarray, rotations: np.ndarray, join: np.ndarray, sigma_root: float = JOIN_SIGMA_ROOT,
@@ -237,7 +241,7 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
     if sigmas.support:
         mask = support_frames(prior, start) if sigmas.support_where == "expected" else None
         terms.append(SupportTerm(cidx, prep.planted_height, sigmas.support, mask=mask,
-                                 planted_only=sigmas.support_where == "planted"))
+                                 planted_only=sigmas.support_where == "planted", from_floor=sigmas.support_from_floor))
     if sigmas.floor:
         terms.append(FloorTerm(cidx, prep.planted_height, sigmas.floor))
     return terms

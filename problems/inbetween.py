@@ -284,9 +284,13 @@ def complete(motion: Motion, prefix: int, n_frames: int, prior, **kwargs) -> Inb
     held-out Bandai clips (bench/tasks.py, 4b), the seconds within the held-out data's
     range on all four measures went from 25 of 45 (free rollout, no skating term) to 28
     (rollouts chosen a second at a time), 33 (and the skating term: feet floating in 12)
-    and 39 (and the support term); MPJPE over the first second 17.3, 19.3, 19.7 and 19.6 cm
-    (constant velocity 29.6)."""
+    and 39 (and the support term), 41 with path following's floor-measured support term
+    taken back (``SupportTerm.from_floor``) and 44 with the feet then planted by leg IK
+    (``clean_feet``, on by default here; only a run's third second skates beyond the
+    range); MPJPE over the first second 17.3, 19.3, 19.7, 19.6, 19.5 and 19.6 cm (constant
+    velocity 29.6)."""
     kwargs.setdefault("sigmas", completion_sigmas())
+    kwargs.setdefault("clean_feet", True)
     if not 0 < prefix <= motion.num_frames:
         raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
     if n_frames <= prefix:

@@ -109,7 +109,7 @@ class PathFollow:
     clamped to the drawn path it swayed at 1.5-3 cm/s across it (``metrics.hip_sway``;
     the held-out walks 5-14), took a square's corners dead square (75-80 cm/s), and its
     feet slid under it (skating within 1.2 times mocap's in 47 of 48 segments; with the
-    sway and rounding 48, and the root 0.7-2.7 cm from the drawn path per 5 s segment
+    sway and rounding 48, and the root 0.7-2.8 cm from the drawn path per 5 s segment
     against 0.1-2.3). A free band of 2.5 cm let the solve drift 3-4 cm off a square.
     Without the skating term the solved feet skimmed the floor at walking speed (skating
     1.3-2.3 times mocap's per 5 s); with it but without the support term the solve lifted
@@ -123,7 +123,7 @@ class PathFollow:
     1 cm 3-4 cm off a straight line, although the same poses with the root on the path
     scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
     window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by
-    12 (the solver's default: 34 by 17) run 43-53 frames per second on one thread.
+    12 (the solver's default: 34 by 17) run 59-64 frames per second on one thread.
     Without ``refine`` the rollout, its feet planted, is the result.
 
     A pace faster than a person moves (``MAX_HUMAN_SPEED``, along the path or joining it

@@ -29,6 +29,10 @@ LIFT_COST = 10.0
 #: Time constant (s) of ``SwayingPath``: sideways root motion slower than this is
 #: taken out, faster (a walk's sway, one stride in about a second) kept.
 SWAY_SECONDS = 0.3
+#: Farthest (m) ``SwayingPath`` lets the root from the path: a walk's sway is 2-3 cm to
+#: each side; a body turning on its planted feet (a seed that starts standing, facing
+#: away from the path) stepped up to 13 cm off it.
+MAX_SWAY = 0.03
 #: Share of each planted sideways step ``SwayingPath`` takes in (an exponential mean):
 #: the steps of sampled legs jitter from frame to frame.
 STEP_SMOOTHING = 0.4
@@ -44,8 +48,8 @@ class SwayingPath:
     unnormalised root features (N, 3), ``root_features``), and sideways the step that
     keeps its planted feet still (``features.planted_root_step``; contact joints within
     the contact height of ``rest`` (C,), their heights above the ground when planted),
-    high-passed: the running mean of those steps over ``SWAY_SECONDS`` is taken out and
-    the distance from the path decays over the same time. A root clamped to the path
+    high-passed: the running mean of those steps over ``SWAY_SECONDS`` is taken out, the
+    distance from the path decays over the same time and is at most ``MAX_SWAY``. A root clamped to the path
     moved sideways at 1.5-3 cm/s (RMS, held-out Bandai walks along drawn paths) against
     7-16 cm/s in the held-out walks themselves, and the stance foot slid under it.
 
@@ -77,7 +81,7 @@ class SwayingPath:
         self.step = self.step + STEP_SMOOTHING * (sideways - self.step)
         rate = 1.0 / (SWAY_SECONDS * spec.fps)
         self.drift = self.drift + rate * (self.step - self.drift)
-        kept = self.step - self.drift - rate * self.offset
+        kept = (self.offset + self.step - self.drift - rate * self.offset).clamp(-MAX_SWAY, MAX_SWAY) - self.offset
         self.offset = self.offset + kept
         raw[..., :2] = step + kept[..., None] * side
         return norm.normalize(raw).to(drawn)

@@ -261,16 +261,20 @@ def test_skating_term_costs_a_gliding_foot_on_the_floor_not_one_planted_or_clear
 
 
 
+def two_feet(h0: float, h1: float) -> WindowState:
+    """A window of frames 1-3 (one lead frame) whose two contact joints stand at heights
+    ``h0`` and ``h1`` (m)."""
+    pos = torch.zeros(4, 2, 3, dtype=torch.float64)
+    pos[:, 0, 1], pos[:, 1, 1] = h0, h1
+    return WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
+                       torch.zeros(3, 2), torch.zeros(3), 30.0)
+
+
 def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
     """Two feet: one on the floor costs (about) nothing whatever the other does; both 6 cm
     up cost (0.06 / sigma)^2 / 2 per frame, less the soft minimum's few millimetres."""
     term = SupportTerm([0, 1], np.array([0.05, 0.05]), sigma=0.03, softness=0.001)
-
-    def state(h0: float, h1: float) -> WindowState:
-        pos = torch.zeros(4, 2, 3, dtype=torch.float64)
-        pos[:, 0, 1], pos[:, 1, 1] = h0, h1
-        return WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
-                           torch.zeros(3, 2), torch.zeros(3), 30.0)
+    state = two_feet
 
     assert float(term.energy(state(0.05, 0.5))) < 1e-6
     assert float(term.energy(state(0.11, 0.11))) == pytest.approx(3 * 2.0, rel=0.05)
@@ -293,17 +297,15 @@ def test_support_term_costs_only_frames_with_no_foot_on_the_floor():
 def test_support_term_measures_every_joint_from_the_floor_not_its_own_planted_height():
     """An ankle (planted 8 cm up) at its planted height with the toe (planted on the floor)
     5 cm up is a heel stand, not support: it costs the toe's 5 cm. The toe on the floor
-    with the ankle raised (heel-off) costs nothing."""
+    with the ankle raised (heel-off) costs nothing. Measured per joint, the heel stand
+    is support."""
     term = SupportTerm([0, 1], np.array([0.08, 0.0]), sigma=0.01, softness=0.001)
-
-    def state(ankle: float, toe: float) -> WindowState:
-        pos = torch.zeros(4, 2, 3, dtype=torch.float64)
-        pos[:, 0, 1], pos[:, 1, 1] = ankle, toe
-        return WindowState(np.arange(1, 4), 1, torch.zeros(3, 4), torch.zeros(0), torch.zeros(0), pos,
-                           torch.zeros(3, 2), torch.zeros(3), 30.0)
+    state = two_feet    # (ankle, toe)
 
     assert float(term.energy(state(0.08, 0.05))) == pytest.approx(3 * (0.05 / 0.01) ** 2 / 2, rel=0.05)
     assert float(term.energy(state(0.15, 0.0))) < 1e-6
+    per_joint = SupportTerm([0, 1], np.array([0.08, 0.0]), sigma=0.01, softness=0.001, from_floor=False)
+    assert float(per_joint.energy(state(0.08, 0.05))) < 1e-6     # each joint from its own planted height
 
 
 def test_floor_term_costs_each_joint_below_its_planted_height_and_nothing_above():

@@ -273,10 +273,10 @@ def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], mot
     return problems.latent.LatentTask(motion[:length], prior, ranges, problems.latent.gap_inversion_options())
 
 
-CLEAN_FEET = arg("--clean-feet", action="store_true",
+CLEAN_FEET = arg("--clean-feet", action=argparse.BooleanOptionalAction, default=None,
                  help="plant the feet the prior finds in contact by leg IK: less sliding in synthesised frames, not "
                  "none, for joints moved by up to tens of centimetres; on denoised capture it can add sliding (the "
-                 "README gives figures; not with --method latent)")
+                 "README gives figures; not with --method latent). On by default for complete, off otherwise")
 
 #: The task commands by name, in the order ``motionopt --help`` lists them.
 TASKS: dict[str, TaskEntry] = {
@@ -322,7 +322,7 @@ TASKS: dict[str, TaskEntry] = {
                        "filter smears them); use it for motion that really jumps tens of degrees a frame, like a "
                        "furious wave captured at 30 fps")),
         build=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, prior, refine=a.refine is not False,
-                                                                      clean_feet=a.clean_feet,
+                                                                      clean_feet=bool(a.clean_feet),
                                                                       repair_glitches=not a.keep_glitches),
         latent=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, _latent_density(prior),
                                                                        refine=a.refine is not False,
@@ -346,7 +346,7 @@ TASKS: dict[str, TaskEntry] = {
             CLEAN_FEET),
         read=_kept_ranges,
         build=lambda a, keep, motion, prior: _problems().inbetween.Inbetween(
-            motion, keep, prior, refine=a.refine is not False, clean_feet=a.clean_feet, after=a.after),
+            motion, keep, prior, refine=a.refine is not False, clean_feet=bool(a.clean_feet), after=a.after),
         draw=_gap_filmstrip,
         latent=lambda a, keep, motion, prior: _latent_inbetween(a, keep, motion, prior)),
     "complete": TaskEntry(
@@ -361,7 +361,7 @@ TASKS: dict[str, TaskEntry] = {
                 help="frames of the output, prefix included"),
             CLEAN_FEET),
         build=lambda a, _, motion, prior: _problems().inbetween.complete(
-            motion, a.prefix, a.frames, prior, refine=a.refine is not False, clean_feet=a.clean_feet),
+            motion, a.prefix, a.frames, prior, refine=a.refine is not False, clean_feet=a.clean_feet is not False),
         latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(motion, a.prefix, a.frames,
                                                                                     prior)),
     "edit": TaskEntry(
