@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from .smoothing import gaussian_smooth
+
 
 def joint_speed(positions: Tensor, fps: float) -> Tensor:
     """Speed (m/s) of every joint between consecutive frames, shape ``(..., T-1, J)``."""
@@ -74,14 +76,6 @@ def foot_skating(positions: Tensor, fps: float, contact_idx: list[int], ground: 
     return speed[mask].mean() if mask.any() else torch.tensor(float("nan"), dtype=positions.dtype)
 
 
-def _smoothed(x: Tensor, sigma: float) -> Tensor:
-    """``x`` (T, K) smoothed along time with a Gaussian of ``sigma`` frames (ends held)."""
-    half = max(int(3 * sigma), 1)
-    k = torch.exp(-0.5 * (torch.arange(-half, half + 1, dtype=x.dtype) / sigma) ** 2)
-    padded = torch.nn.functional.pad(x.T[None], (half, half), mode="replicate")
-    return torch.nn.functional.conv1d(padded, (k / k.sum()).expand(x.shape[1], 1, -1), groups=x.shape[1])[0].T
-
-
 def hip_sway(root_xz: Tensor, fps: float, min_speed: float = 0.3) -> Tensor:
     """RMS speed (m/s) of the root (T, 2 ground coordinates) across its direction of
     travel: the side-to-side sway of a walk (held-out Bandai walks: 0.05-0.14). The
@@ -89,10 +83,10 @@ def hip_sway(root_xz: Tensor, fps: float, min_speed: float = 0.3) -> Tensor:
     (a stride); frames travelling slower than ``min_speed`` m/s do not count (NaN if none).
     A root that takes a corner dead square scores far above any walk (0.6-0.8)."""
     v = torch.gradient(root_xz, dim=0)[0] * fps
-    travel = _smoothed(v, 0.4 * fps)
+    travel = gaussian_smooth(v[None], 0.4 * fps)[0]
     speed = travel.norm(dim=-1)
     side = torch.stack((travel[:, 1], -travel[:, 0]), -1) / speed.clamp_min(1e-9)[:, None]
-    across = (_smoothed(v, 0.1 * fps) * side).sum(-1)
+    across = (gaussian_smooth(v[None], 0.1 * fps)[0] * side).sum(-1)
     moving = speed > min_speed
     return across[moving].pow(2).mean().sqrt() if moving.any() else torch.tensor(float("nan"))
 

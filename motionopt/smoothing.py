@@ -5,6 +5,7 @@ Denoising picks, for each joint, the smoother of least Stein unbiased risk estim
 Savitzky-Golay filters: no clean signal is needed, and since each is linear the risk
 needs only its output and the trace of its matrix. Smoothers act on (T, K) arrays in
 O(T): no (T, T) matrix is formed, so hour-long captures cost memory in proportion.
+``gaussian_smooth`` smooths torch tensors, batched (degraded training copies, hip sway).
 """
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import torch
+import torch.nn.functional as Fn
 from scipy.ndimage import correlate1d
 from scipy.signal import butter, filtfilt, savgol_filter
 from threadpoolctl import threadpool_limits
@@ -114,6 +117,20 @@ def least_risk(y: np.ndarray, sigma: float, family: tuple[Smoother, ...] | list[
     if c is not None:
         best = np.where(risks[c] <= risks.min(axis=0) + sigma ** 2 * np.sqrt(2 * k * n), c, best)
     return [usable[i] for i in best]
+
+
+def gaussian_smooth(x: torch.Tensor, sigma: torch.Tensor | float) -> torch.Tensor:
+    """``x`` (B, T, K) smoothed along time by a Gaussian of ``sigma`` frames, one for all
+    or one per batch entry (B,); the ends are held (replicate padding), out to 3 sigma."""
+    B, T, K = x.shape
+    sigma = torch.as_tensor(sigma, dtype=x.dtype, device=x.device).expand(B)
+    half = int(torch.ceil(3 * sigma.max()))
+    t = torch.arange(-half, half + 1, dtype=x.dtype, device=x.device)
+    kernel = torch.exp(-0.5 * (t[None] / sigma[:, None]) ** 2)
+    kernel = kernel / kernel.sum(-1, keepdim=True)  # (B, 2 half + 1)
+    h = Fn.pad(x.transpose(1, 2), (half, half), mode="replicate")  # (B, K, T + 2 half)
+    smooth = Fn.conv1d(h.reshape(1, B * K, -1), kernel.repeat_interleave(K, 0)[:, None], groups=B * K)
+    return smooth.reshape(B, K, T).transpose(1, 2)
 
 
 def smoothstep(x: np.ndarray) -> np.ndarray:

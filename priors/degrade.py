@@ -16,10 +16,10 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as Fn
 from torch import Tensor
 
 from motionopt.features import FeatureSpec
+from motionopt.smoothing import gaussian_smooth
 
 #: The kinds of copy, and how often each is drawn. Low-passes get the most: a copy
 #: smoothed at 2 Hz keeps most of a walk and is the hardest to tell from it (a prior
@@ -42,15 +42,8 @@ def lowpass(raw: Tensor, spec: FeatureSpec, cutoff_hz: Tensor) -> Tensor:
     """Each window smoothed by a Gaussian whose half-power frequency is ``cutoff_hz`` (B,);
     contact labels are kept."""
     sigma = spec.fps * math.sqrt(math.log(2)) / (2 * math.pi * cutoff_hz)  # frames
-    half = int(torch.ceil(3 * sigma.max()))
-    t = torch.arange(-half, half + 1, dtype=raw.dtype, device=raw.device)
-    kernel = torch.exp(-0.5 * (t[None] / sigma[:, None].to(raw)) ** 2)
-    kernel = kernel / kernel.sum(-1, keepdim=True)  # (B, K)
-    B, T, D = raw.shape
     p = spec.pose_dim
-    h = Fn.pad(raw[..., :p].transpose(1, 2), (half, half), mode="replicate")  # (B, P, T + 2 half)
-    smooth = Fn.conv1d(h.reshape(1, B * p, -1), kernel.repeat_interleave(p, 0)[:, None], groups=B * p)
-    return torch.cat((smooth.reshape(B, p, T).transpose(1, 2), raw[..., p:]), dim=-1)
+    return torch.cat((gaussian_smooth(raw[..., :p], sigma.to(raw)), raw[..., p:]), dim=-1)
 
 
 def retimed(raw: Tensor, spec: FeatureSpec, factor: Tensor) -> tuple[Tensor, Tensor]:

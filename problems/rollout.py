@@ -48,14 +48,16 @@ class SwayingPath:
     unnormalised root features (N, 3), ``root_features``), and sideways the step that
     keeps its planted feet still (``features.planted_root_step``; contact joints within
     the contact height of ``rest`` (C,), their heights above the ground when planted),
-    high-passed: the running mean of those steps over ``SWAY_SECONDS`` is taken out, the
-    distance from the path decays over the same time and is at most ``MAX_SWAY``. A root clamped to the path
-    moved sideways at 1.5-3 cm/s (RMS, held-out Bandai walks along drawn paths) against
-    7-16 cm/s in the held-out walks themselves, and the stance foot slid under it.
+    smoothed (``STEP_SMOOTHING``) and high-passed: the running mean of those steps over
+    ``SWAY_SECONDS`` is taken out, and the distance from the path decays over the same
+    time and is at most ``MAX_SWAY``. A root clamped to the path moved sideways at
+    1.5-3 cm/s (RMS, held-out Bandai walks along drawn paths) against 7-16 cm/s in the
+    held-out walks themselves, and the stance foot slid under it.
 
-    ``first`` is the path frame of the next rollout's frame 0; ``offset`` and ``drift``
-    (per rollout, m and m per frame) carry the sideways state from one rollout to the
-    next (``continue_from``)."""
+    ``first`` is the path frame of the next rollout's frame 0; ``offset``, ``drift`` and
+    ``step`` (per rollout: m from the path, the running mean sideways step and the
+    smoothed one, m per frame) carry the sideways state from one rollout to the next
+    (``continue_from``)."""
 
     prior: object
     path_raw: Tensor
@@ -150,10 +152,10 @@ def chosen_rollout(prior, history: torch.Tensor, state: RootStart, last_feet: np
     for a in range(0, n_frames, chunk):
         ctx = history[-prior.receptive_field:].expand(candidates, -1, -1)
         k = min(chunk, n_frames - a)
-        if clamp_raw is None or steer is not None:
-            new = prior.sample(ctx.float(), k, generator=generator, temperature=temperature, plant=False, steer=steer)
-        else:
+        if clamp_raw is not None and steer is None:
             new = clamped_rollout(prior, ctx, clamp_raw[a:a + k], slice(0, 3), temperature, generator)
+        else:
+            new = prior.sample(ctx.float(), k, generator=generator, temperature=temperature, plant=False, steer=steer)
         raw = norm.denormalize(new.double())
         with torch.no_grad():
             feet = decode_positions(raw, spec, skeleton, state)[..., cidx, :]
