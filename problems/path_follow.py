@@ -35,10 +35,22 @@ PATH_TOLERANCE = 0.1
 #: Seconds (a Gaussian's sigma) over which the timed targets are smoothed: corners are
 #: rounded and stops eased as people walk them, not taken dead square.
 ROUNDING_SECONDS = 0.15
+#: Median pace (m/s) of the timed targets from which the path asks for a walk, and so for
+#: a walk's hip sway. The clips' own 3 s root paths: held-out Bandai walks and runs
+#: 0.68-1.95 m/s, held-out CMU dance and martial arts 0.04-0.55; the sway taken from a
+#: dancer's planted feet made those skate 0.79 times mocap's, against 0.22 clamped.
+WALK_PACE = 0.5
+
 #: Units a path is often written in by mistake for metres, tried in this order to explain a pace no one runs.
 UNIT_MISTAKES = {"cm": "centimetres", "mm": "millimetres"}
 #: Most points a PATH.csv may hold: more than 10 minutes at 8 m/s with a point every 5 cm.
 MAX_PATH_POINTS = 100_000
+
+
+def asks_for_walk(targets: np.ndarray, fps: float) -> bool:
+    """Whether timed targets (K, 2), one per frame, move at a walk's pace (``WALK_PACE``)."""
+    steps = np.linalg.norm(np.diff(targets, axis=0), axis=1) * fps
+    return len(steps) > 0 and float(np.median(steps)) >= WALK_PACE
 
 
 def rounded(points: np.ndarray, sigma: float) -> np.ndarray:
@@ -124,7 +136,9 @@ class PathFollow:
     scored lower (``solver.energies_at``): a search failure in 30 L-BFGS iterations per
     window, which the steeper 5 mm term pulls back. Windows of 56 frames overlapping by
     12 (the solver's default: 34 by 17) run 59-64 frames per second on one thread.
-    Without ``refine`` the rollout, its feet planted, is the result.
+    Without ``refine`` the rollout, its feet planted, is the result. The sway is a walk's:
+    timed targets slower than ``WALK_PACE`` (a dancer moving about) are followed as with
+    ``sway`` 0 (``asks_for_walk``).
 
     A pace faster than a person moves (``MAX_HUMAN_SPEED``, along the path or joining it
     from the seed's end) is refused before any synthesis (``check_pace``): such a path is
@@ -240,8 +254,12 @@ class PathFollow:
         off = prep.model.root[-1, [0, 2]] - tgt[0] + (tgt[1] - tgt[0] if n_new > 1 else 0)
         fade = smoothstep(1 - np.arange(1, n_new + 1) / max(fps * JOIN_SECONDS, 1))[:, None]
         tgt = tgt + off * fade
-        walked = rounded(np.concatenate((prep.model.root[-1:, [0, 2]], tgt)), ROUNDING_SECONDS * fps)
-        tgt = walked[1:]
+        walked = np.concatenate((prep.model.root[-1:, [0, 2]], tgt))
+        walk = asks_for_walk(walked, fps)
+        if walk:
+            walked = rounded(walked, ROUNDING_SECONDS * fps)
+            tgt = walked[1:]
+        sway = self.sway if walk else 0.0
         self.check_pace(speed, prep.model.root[-1, [0, 2]], float(np.linalg.norm(off)))
         n_seed = len(prep.x)
         n = n_seed + n_new
@@ -252,7 +270,7 @@ class PathFollow:
                              prep.model.skeleton, prep.planted_height, n_new, self.candidates,
                              self.options.temperature_for(prior), gen,
                              torch.from_numpy(self.root_channels(prep, tgt, fps)),
-                             lift_limit(seed_feet, prep.planted_height), sway=self.sway > 0)
+                             lift_limit(seed_feet, prep.planted_height), sway=sway > 0)
         x = torch.cat((prep.x, new))
         model = plant_feet(self.decode(x, prep), prior, x, prep.planted_height, slice(n_seed, n))
         result = None
@@ -264,7 +282,7 @@ class PathFollow:
             joined[n_seed:] = fade[:, 0] * np.linalg.norm(off) < JOINED
             full_targets = np.zeros((n, 2))
             full_targets[n_seed:] = tgt
-            terms = [PathTerm(walked, self.sigma_path, mask=joined, name="path", width=self.sway),
+            terms = [PathTerm(walked, self.sigma_path, mask=joined, name="path", width=sway),
                      PathTerm(self.path, self.sigma_timing, targets=full_targets, mask=free, name="path_timing")]
             terms += standard_terms(prep, prior, self.sigmas, x)
             result, _ = run(prior, prep, x, free, terms, replace(self.options, pso=None))
@@ -288,7 +306,7 @@ class PathFollow:
             "frames_per_second": n_new / max(seconds, 1e-9),
         }
         warnings = warned(distance_warnings(dist))
-        settings = {"sigma_path": self.sigma_path, "sway": self.sway, "speed": speed, "new_seconds": n_new / fps,
+        settings = {"sigma_path": self.sigma_path, "sway": sway, "speed": speed, "new_seconds": n_new / fps,
                     "refine": self.refine,
                     "temperature": self.options.temperature_for(prior)}
         return judged(TaskResult(motion, model, result, metrics, settings, warnings), prior, prep.start.ground)

@@ -10,7 +10,7 @@ import torch
 from motionopt.metrics import foot_skating
 from motionopt.objective import nearest_on_polyline_sq
 from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
-from problems.path_follow import PathFollow, rounded
+from problems.path_follow import WALK_PACE, PathFollow, asks_for_walk, rounded
 
 from clips import shared_excerpt
 
@@ -33,12 +33,12 @@ def solved():
     angle = np.linspace(0, 3.2 / 1.5, 60)
     path = end + 1.5 * (np.sin(angle)[:, None] * heading + (1 - np.cos(angle))[:, None] * side)
     torch.set_num_threads(1)
-    return prior, path, {refine: PathFollow(seed, path, prior, speed=0.8, seconds=4.0, refine=refine).solve()
+    return prior, seed, path, {refine: PathFollow(seed, path, prior, speed=0.8, seconds=4.0, refine=refine).solve()
                          for refine in (True, False)}
 
 
 def test_the_solved_walk_stays_on_the_path_and_its_feet_glide_less_than_the_rollout(solved):
-    prior, path, results = solved
+    prior, _, path, results = solved
     solve, rollout = results[True], results[False]
     assert solve.solver is not None and rollout.solver is None
     n_seed = 30
@@ -57,7 +57,7 @@ def test_the_solved_walk_stays_on_the_path_and_its_feet_glide_less_than_the_roll
 def test_the_solved_walk_sways_sideways_as_a_walk_does(solved):
     """The hips move from side to side across the path (held-out walks: 7-16 cm/s RMS
     sideways against the direction of travel), not pinned to it (1.5-3 cm/s before)."""
-    prior, path, results = solved
+    prior, _, path, results = solved
     root = results[True].model_motion.root[30:, [0, 2]]
     velocity = np.gradient(root, axis=0) * 30
     travel = np.gradient(path, axis=0)
@@ -76,3 +76,24 @@ def test_rounded_paths_keep_straight_stretches_and_ends_and_cut_corners_a_little
     assert np.allclose(r[[0, -1]], corner[[0, -1]])
     cut = np.linalg.norm(r[29] - corner[29])
     assert 0.02 < cut < 0.08
+
+
+def test_a_path_asks_for_a_walk_from_a_walks_pace_by_its_median_step():
+    line = lambda pace, n=90: np.stack((np.arange(n) * pace / 30, np.zeros(n)), 1)  # noqa: E731
+    assert not asks_for_walk(line(0.3), 30) and asks_for_walk(line(1.0), 30)
+    assert not asks_for_walk(line(1.0, 1), 30)
+    stop_and_go = np.concatenate((line(1.0, 180), np.repeat(line(1.0, 180)[-1:], 90, 0)))  # 6 s walked, 3 s stood
+    assert asks_for_walk(stop_and_go, 30)
+
+
+def test_a_path_slower_than_a_walk_is_followed_without_sway_and_a_walk_with_it(solved):
+    """A dancer moving about at 0.3 m/s is held on the path (a walk's sway taken from
+    planted feet made dance skate more); the 0.8 m/s arc keeps its sway."""
+    prior, seed, path, results = solved
+    assert results[True].settings["sway"] > 0
+    hips = seed.positions()[:, seed.skeleton.index("Hips"), :][:, [0, 2]]
+    heading = (hips[-1] - hips[-8]) / np.linalg.norm(hips[-1] - hips[-8])
+    slow = hips[-1] + np.linspace(0, 0.9, 30)[:, None] * heading
+    result = PathFollow(seed, slow, prior, speed=0.5 * WALK_PACE, seconds=3.0).solve()
+    assert result.settings["sway"] == 0
+    assert result.metrics["path_distance_cm_mean"] < 0.2
