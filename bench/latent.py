@@ -39,8 +39,9 @@ clips named in its metadata, loaded from the data folder named there:
    variations, and their NLL per frame under the autoregressive prior beside the
    input's); ``interpolate`` (how far each end is from its input).
 
-Run ``python bench/latent.py [CHECKPOINT ...] [--threads N]``; the report is printed
-and, for the shipped checkpoints, written to bench/results/latent.txt.
+Run ``python bench/latent.py [CHECKPOINT ...] [--threads N] [--sections 1 4 ...]``; the
+report is printed and, for all sections of the shipped checkpoints, written to
+bench/results/latent.txt.
 """
 from __future__ import annotations
 
@@ -559,7 +560,11 @@ def variation_figures(prior, ar, motions: list[Motion], score_motion) -> list[st
     return lines
 
 
-def bench(path: Path, iters: int, reg: float) -> list[str]:
+SECTIONS = (1, 2, 3, 4, 5)
+
+
+def bench(path: Path, iters: int, reg: float, sections: tuple[int, ...] = SECTIONS) -> list[str]:
+    """The report of one checkpoint: the numbered sections of the module docstring."""
     prior = load_prior(path)
     meta = prior.metadata
     data = data_folder(meta)
@@ -573,12 +578,17 @@ def bench(path: Path, iters: int, reg: float) -> list[str]:
              f"{meta.get('steps_done')} steps in {meta.get('training_minutes', 0):.0f} min; "
              f"{sum(v.numel() for v in read_checkpoint(path)['state_dict'].values())} parameters, "
              f"{path.stat().st_size / 1e6:.1f} MB; data prepared in {time.perf_counter() - t0:.0f} s"]
-    lines += reconstruction(prior, val_r, iters, reg)
     ar = CHECKPOINT_DIR / AR_FOR[path.name] if path.name in AR_FOR else None
-    lines += sampling(prior, ar, clip_windows(train_x, prior.window, 8), clip_windows(val_x, prior.window, 8))
-    lines += semantic(prior)
-    lines += tasks(prior, ar, data, meta["validation_clips"], iters)
-    lines += user_figures(prior, ar, data, meta["validation_clips"], iters)
+    if 1 in sections:
+        lines += reconstruction(prior, val_r, iters, reg)
+    if 2 in sections:
+        lines += sampling(prior, ar, clip_windows(train_x, prior.window, 8), clip_windows(val_x, prior.window, 8))
+    if 3 in sections:
+        lines += semantic(prior)
+    if 4 in sections:
+        lines += tasks(prior, ar, data, meta["validation_clips"], iters)
+    if 5 in sections:
+        lines += user_figures(prior, ar, data, meta["validation_clips"], iters)
     return lines
 
 
@@ -588,6 +598,8 @@ def main() -> None:
     ap.add_argument("--refine-iters", type=int, default=200)
     ap.add_argument("--reg", type=float, default=InversionOptions().reg_weight)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--sections", type=int, nargs="+", choices=SECTIONS, default=SECTIONS,
+                    help="the sections to run (default all); a partial run writes no results file")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -597,12 +609,12 @@ def main() -> None:
     out = []
     for p in paths:
         t0 = time.perf_counter()
-        block = bench(p, args.refine_iters, args.reg)
+        block = bench(p, args.refine_iters, args.reg, tuple(args.sections))
         block += [f"   (benchmark of {p.name}: {time.perf_counter() - t0:.0f} s, torch threads "
                   f"{torch.get_num_threads()})", ""]
         print("\n".join(block), flush=True)
         out += block
-        if not args.checkpoints:  # written after each checkpoint, so a long run leaves its figures as it goes
+        if not args.checkpoints and tuple(args.sections) == SECTIONS:  # written after each checkpoint, so a long run leaves its figures as it goes
             RESULTS.parent.mkdir(parents=True, exist_ok=True)
             RESULTS.write_text("\n".join(out) + "\n")
 

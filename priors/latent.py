@@ -50,6 +50,10 @@ class LatentConfig:
     channels: tuple[int, ...] = (128, 256)
     kernel_size: int = 3
     sample_components: int = 256
+    #: Bidirectional GRU layers over the masked encoder's codes (0: none, the design of
+    #: checkpoints trained before 2026-12-05). Its convolutions see about 6 frames either
+    #: side of a code, so without them a completed second is decoded from nothing.
+    masked_context: int = 1
 
     @property
     def levels(self) -> int:
@@ -69,6 +73,7 @@ class LatentConfig:
     def from_dict(cls, d: dict) -> "LatentConfig":
         d = dict(d)
         d["channels"] = tuple(d["channels"])
+        d.setdefault("masked_context", 0)  # stored before the field existed
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -87,7 +92,11 @@ def _residual(b: nn.ModuleDict, h: Tensor) -> Tensor:
 
 
 class Encoder(nn.Module):
-    """Window (B, T, D) [and mask (B, T)] -> codes (B, T / 2**levels, w_dim)."""
+    """Window (B, T, D) [and mask (B, T)] -> codes (B, T / 2**levels, w_dim).
+
+    The masked encoder adds ``config.masked_context`` bidirectional GRU layers over the
+    code positions (a residual branch), so every code sees the whole window: what the
+    seen frames say about a second after them or a gap between them."""
 
     def __init__(self, config: LatentConfig, in_dim: int, masked: bool = False):
         super().__init__()
@@ -95,6 +104,9 @@ class Encoder(nn.Module):
         c = config.channels
         self.inp = nn.Conv1d(in_dim + int(masked), c[0], 1)
         self.blocks = nn.ModuleList(_block(c[max(i - 1, 0)], c[i], config.kernel_size) for i in range(len(c)))
+        layers = config.masked_context if masked else 0
+        self.context = (nn.GRU(c[-1], c[-1] // 2, num_layers=layers, batch_first=True, bidirectional=True)
+                        if layers else None)
         self.out = nn.Conv1d(c[-1], config.w_dim, 1)
 
     def forward(self, x: Tensor, mask: Tensor | None = None) -> Tensor:
@@ -106,6 +118,8 @@ class Encoder(nn.Module):
         h = Fn.leaky_relu(self.inp(x.transpose(1, 2)), 0.2)
         for b in self.blocks:
             h = Fn.avg_pool1d(_residual(b, h), 2)
+        if self.context is not None:
+            h = (h + self.context(h.transpose(1, 2))[0].transpose(1, 2)) / _SQRT2
         return self.out(h).transpose(1, 2).contiguous()  # contiguous: L-BFGS views the codes' gradient
 
 

@@ -22,6 +22,10 @@
 3. Masked encoder, generator frozen: the same losses on full windows, from inputs whose
    unseen frames are zeroed (random prefixes and random gaps).
 
+``init`` starts from a latent checkpoint (its normaliser, and every weight and code
+statistic whose shape the new architecture shares) and ``phases`` names the phases to
+run: retraining only the masked encoder of a trained prior is ``phases=("masked",)``.
+
 An "epoch" is ``epoch_steps`` optimiser steps; a phase ends after its epochs or its
 minutes (``autoencoder_minutes``...), and one call stops after ``max_minutes``
 (resumable). After each epoch, the usable checkpoint ``out`` and the resumable
@@ -83,7 +87,16 @@ class LatentTrainConfig:
     max_minutes: float | None = None
     seed: int = 0
     threads: int | None = None
+    init: str | None = None
+    phases: tuple[str, ...] = PHASES
     model: LatentConfig = field(default_factory=LatentConfig)
+
+    def __post_init__(self) -> None:
+        self.phases = tuple(self.phases)
+        if not self.phases or list(self.phases) != [p for p in PHASES if p in self.phases]:
+            raise ValueError(f"phases must be some of {', '.join(PHASES)}, in that order; got {', '.join(self.phases)}")
+        if self.phases[0] != PHASES[0] and self.init is None:
+            raise ValueError(f"skipping the {PHASES[0]} phase needs a trained checkpoint to start from (--init)")
 
     def epochs(self, phase: str) -> int:
         return getattr(self, f"{phase}_epochs")
@@ -139,14 +152,17 @@ class LatentTrainer:
         self.gen = torch.Generator().manual_seed(config.seed)
         torch.manual_seed(config.seed)
         cfg = config.model
+        start = initial_latent(config.init, dataset) if config.init else None
         self.train_w = dataset.windows("train", cfg.window, config.stride)
         self.val_w = dataset.windows("val", cfg.window, cfg.window // 4) if dataset.val else None
         self.prior = LatentPrior(dataset.spec, dataset.normalizer, dataset.skeleton, cfg, metadata)
+        if start is not None:
+            take_weights(self.prior, start, config.phases)
         self.geo = Geometry(self.prior)
         p = self.prior
         self.opt_a = torch.optim.Adam(list(p.encoder.parameters()) + list(p.generator.parameters()), lr=config.lr)
         self.opt_m = torch.optim.Adam(p.masked_encoder.parameters(), lr=config.encoder_lr)
-        self.phase, self.epoch, self.step, self.history, self.seconds = PHASES[0], 0, 0, [], 0.0
+        self.phase, self.epoch, self.step, self.history, self.seconds = config.phases[0], 0, 0, [], 0.0
 
     # ---- state -------------------------------------------------------------------------
     def state(self) -> dict:
@@ -251,8 +267,9 @@ class LatentTrainer:
         return sum(r["epoch_minutes"] for r in self.history if r["phase"] == self.phase)
 
     def _next_phase(self) -> None:
-        nxt = PHASES.index(self.phase) + 1
-        self.phase, self.epoch = (PHASES[nxt] if nxt < len(PHASES) else None), 0
+        phases = self.config.phases
+        nxt = phases.index(self.phase) + 1
+        self.phase, self.epoch = (phases[nxt] if nxt < len(phases) else None), 0
 
     def run(self, out: Path, progress: bool) -> LatentPrior:
         """Train until every phase is done or this call's ``max_minutes`` is spent."""
@@ -309,6 +326,7 @@ class LatentTrainer:
         meta["epochs_done"] = len(self.history)
         meta["phase_next"] = self.phase
         meta["phases_done"] = [p for p in PHASES if self.phase is None or PHASES.index(p) < PHASES.index(self.phase)]
+        meta["phases_trained"] = list(self.config.phases)
         save_prior(self.prior, out, dtype=torch.float16)
         atomic_torch_save(self.state(), state_path(out))
 
@@ -329,6 +347,43 @@ def train_latent(dataset: MotionDataset, out: str | Path, config: LatentTrainCon
         add_directions(prior, dataset, config.seed)
         save_prior(prior, out, dtype=torch.float16)
     return prior.eval()
+
+
+def initial_latent(path: str, dataset: MotionDataset) -> LatentPrior:
+    """The latent prior a run starts from; ``dataset`` takes over its normaliser (its
+    weights read features in its units). Raises ValueError when its features differ."""
+    from .checkpoint import load_prior, resolve_checkpoint
+
+    start = load_prior(resolve_checkpoint(path))
+    if not isinstance(start, LatentPrior):
+        raise ValueError(f"{path} is a {type(start).__name__}; --init needs a latent checkpoint")
+    if start.spec != dataset.spec:
+        raise ValueError(f"{path} models other features (joints {', '.join(start.spec.joints)} at "
+                         f"{start.spec.fps:g} fps) than the training data: start from a prior of its skeleton")
+    dataset.normalizer = start.normalizer
+    return start
+
+
+#: Metadata a run that trains neither the autoencoder nor the denoising encoder keeps from
+#: its start: what those two alone determine.
+ENCODER_METADATA = ("attribute_directions", "style_classifier")
+
+
+def take_weights(prior: LatentPrior, start: LatentPrior, phases: tuple[str, ...]) -> None:
+    """Copy into ``prior`` every weight and buffer of ``start`` of the same name and shape
+    (float32), and the start's training record; when neither the autoencoder nor the
+    denoising encoder is trained again, also its semantic directions and style classifier."""
+    own = prior.state_dict()
+    taken = {k: v.float() for k, v in start.state_dict().items() if k in own and own[k].shape == v.shape}
+    prior.load_state_dict(taken, strict=False)
+    if prior.generator.state_dict().keys() - {k.split(".", 1)[1] for k in taken if k.startswith("generator.")}:
+        raise ValueError("the generator of --init does not match the architecture asked for")
+    meta = start.metadata
+    prior.metadata["init"] = {"training_command": meta.get("training_command"),
+                              "training_minutes": meta.get("training_minutes"),
+                              "weights_taken": len(taken), "weights_new": len(own) - len(taken)}
+    if not {"autoencoder", "denoising"} & set(phases):
+        prior.metadata.update({k: meta[k] for k in ENCODER_METADATA if k in meta})
 
 
 #: Training windows the semantic directions are fitted and calibrated on: at most this

@@ -452,3 +452,46 @@ def test_latent_inbetweening_solves_the_gap_and_keeps_the_kept_frames(prior):
     plain = LatentTask(clip, prior, [(0, a), (b, clip.num_frames)], map_options=None).solve()
     assert "map_objective" not in plain.metrics
     assert not np.allclose(plain.motion.rotations[:a], clip.rotations[:a])
+
+
+def test_masked_context_lets_the_first_frames_reach_the_last_code(prior):
+    """With its GRU, the masked encoder's last code depends on the window's first frames;
+    convolutions alone see only about 6 frames either side of a code."""
+    x = tiny_dataset().windows("train", WINDOW, 4)[:1]
+    mask = torch.zeros(1, WINDOW)
+    mask[:, :4] = 1
+    moved = x + 0.5 * mask[..., None]
+    assert prior.config.masked_context == 1
+    assert not torch.allclose(prior.encode_masked(x, mask)[:, -1], prior.encode_masked(moved, mask)[:, -1], atol=1e-5)
+    local = LatentPrior(prior.spec, prior.normalizer, prior.skeleton, replace(prior.config, masked_context=0))
+    assert torch.allclose(local.encode_masked(x, mask)[:, -1], local.encode_masked(moved, mask)[:, -1], atol=1e-6)
+
+
+def test_configs_stored_before_the_masked_context_load_without_it():
+    stored = {k: v for k, v in LatentConfig().to_dict().items() if k != "masked_context"}
+    assert LatentConfig.from_dict(stored).masked_context == 0
+
+
+def test_retraining_only_the_masked_encoder_keeps_the_rest(trained, tmp_path):
+    start = load_prior(trained[0])
+    out = tmp_path / "remasked.pt"
+    cfg = config(init=str(trained[0]), phases=("masked",), masked_epochs=1,
+                 model=replace(start.config, masked_context=2))
+    train_latent(tiny_dataset(), out, cfg, metadata={"licence": "test licence"}, progress=False)
+    new = load_prior(out)
+    assert new.config.masked_context == 2
+    assert [r["phase"] for r in new.metadata["history"]] == ["masked"]
+    assert new.metadata["init"]["weights_new"] > 0
+    for part in ("generator", "encoder"):
+        for (k, a), b in zip(getattr(start, part).state_dict().items(), getattr(new, part).state_dict().values()):
+            assert torch.equal(a, b), k
+    assert torch.equal(start.w_components, new.w_components)
+    assert new.metadata["attribute_directions"] == start.metadata["attribute_directions"]
+    assert not torch.equal(start.masked_encoder.inp.weight, new.masked_encoder.inp.weight)
+
+
+def test_phases_are_checked():
+    with pytest.raises(ValueError, match="needs a trained checkpoint"):
+        LatentTrainConfig(phases=("masked",))
+    with pytest.raises(ValueError, match="in that order"):
+        LatentTrainConfig(phases=("masked", "autoencoder"))

@@ -5,8 +5,11 @@ import argparse
 import shlex
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+
+from priors.latent import LatentConfig
+from priors.train_latent import PHASES
 
 from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
@@ -31,6 +34,14 @@ def register(sub) -> None:
     p.add_argument("--max-minutes", type=float, default=None,
                    help="stop this run after this much time (run the same command again to resume)")
     p.add_argument("--tiny", action="store_true", help="a very small network (for tests and trials)")
+    p.add_argument("--masked-context", type=int, default=LatentConfig.masked_context,
+                   help="bidirectional GRU layers that let the masked encoder see the whole window "
+                   f"(default {LatentConfig.masked_context}; 0: convolutions only, about 6 frames either side)")
+    p.add_argument("--init", default=None, metavar="CKPT",
+                   help="start from this latent checkpoint: its normaliser and every weight the architecture shares")
+    p.add_argument("--phases", nargs="+", choices=PHASES, default=list(PHASES),
+                   help="the phases to run, in order (default all; '--init CKPT --phases masked' retrains only "
+                   "the masked encoder of CKPT, keeping its semantic directions)")
     add_training_run_args(p)
     p.set_defaults(func=cmd_train)
 
@@ -83,21 +94,39 @@ TINY = {"w_dim": 16, "channels": (16, 32), "sample_components": 64}
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from priors.latent import LatentConfig
     from priors.train_latent import LatentTrainConfig, train_latent
 
+    model = LatentConfig(**TINY) if args.tiny else LatentConfig()
+    if args.init:
+        model = initial_config(args.init)
+    model = replace(model, masked_context=args.masked_context)
+    try:
+        cfg = LatentTrainConfig(autoencoder_epochs=args.autoencoder_epochs, denoising_epochs=args.denoising_epochs,
+                                masked_epochs=args.masked_epochs, denoising_minutes=args.denoising_minutes,
+                                epoch_steps=args.epoch_steps, stride=args.stride,
+                                autoencoder_minutes=args.autoencoder_minutes, masked_minutes=args.masked_minutes,
+                                max_minutes=args.max_minutes, seed=args.seed, threads=args.threads, init=args.init,
+                                phases=tuple(args.phases), model=model)
+    except ValueError as e:
+        raise UserError(str(e)) from e
     ds = training_dataset(args)
-    cfg = LatentTrainConfig(autoencoder_epochs=args.autoencoder_epochs, denoising_epochs=args.denoising_epochs,
-                            masked_epochs=args.masked_epochs, denoising_minutes=args.denoising_minutes,
-                            epoch_steps=args.epoch_steps, stride=args.stride, autoencoder_minutes=args.autoencoder_minutes,
-                            masked_minutes=args.masked_minutes, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
-                            model=LatentConfig(**TINY) if args.tiny else LatentConfig())
     meta = {"training_command": "motionopt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
             "data": str(Path(args.data)), "licence": args.licence}
     train_latent(ds, args.out, cfg, metadata=meta, progress=not args.quiet, force=args.force)
     if not args.quiet:
         print(f"wrote {args.out}")
     return 0
+
+
+def initial_config(path: str) -> "LatentConfig":
+    """The architecture of the latent checkpoint ``path`` (what --init starts from)."""
+    from priors.checkpoint import load_prior, resolve_checkpoint
+    from priors.latent import LatentPrior
+
+    start = load_prior(resolve_checkpoint(path))
+    if not isinstance(start, LatentPrior):
+        raise UserError(f"--init {path} is a {type(start).__name__}; train-latent starts from a latent checkpoint")
+    return start.config
 
 
 def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, out_required: bool = True) -> None:
