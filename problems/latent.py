@@ -221,10 +221,10 @@ def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: L
 
 
 #: L-BFGS iterations of the inversion before in-betweening's MAP solve (``gap_inversion_options``).
-#: 1.5 s gaps of held-out clips (bench/latent.py section 4; error on the gap, mm): with 200,
-#: Bandai 89.3 (29 clips) and CMU 116.2 (4 clips); with the encoder alone, 141 on 3 of those
-#: Bandai clips (107 with 200) and CMU 117.9. Completion keeps the encoder alone: refined
-#: toward the first second only, CMU's next second went from 125 to 203 mm.
+#: 1.5 s gaps of held-out clips (bench/latent.py section 4; error on the gap, mm; the MAP
+#: solve after): with 200, Bandai 50.2 (29 clips) and CMU 99.9 (4 clips); the masked encoder
+#: alone before the solve, Bandai 65.0 and CMU 116. Completion keeps the encoder alone:
+#: refined toward the first second, CMU's next second went from 109 to 114 mm (Bandai 112 to 106).
 GAP_REFINE_ITERS = 200
 
 
