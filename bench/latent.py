@@ -35,9 +35,12 @@ clips named in its metadata, loaded from the data folder named there:
    MAP without a prior term, against the noisy input; edits at strength +2 against -2
    (``problems.latent_edit``; mean hip height and right hand height in cm, root speed in
    percent, the style classifier's probability of a style) with the root path change and
-   the feet's sliding against strength 0's; ``vary`` (mean pairwise joint distance of 4
-   variations, and their NLL per frame under the autoregressive prior beside the
-   input's); ``interpolate`` (how far each end is from its input).
+   the feet's sliding against strength 0's.
+6. Variations, interpolation and fusion on section 5's clips: ``vary`` (mean pairwise
+   joint distance of 4 variations, and their NLL per frame under the autoregressive
+   prior beside the input's), ``interpolate`` (how far each end is from its input, and
+   the middle step's NLL under the autoregressive prior) and
+   ``fuse`` (each part's distance from its input, the fastest joint across the seam).
 
 Run ``python bench/latent.py [CHECKPOINT ...] [--threads N] [--sections 1 4 ...]``; the
 report is printed and, for all sections of the shipped checkpoints, written to
@@ -56,8 +59,10 @@ from torch import Tensor, nn
 
 from motionopt import attributes as A
 from motionopt import bvh
+from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.dataset import build_dataset
+from motionopt.features import heading_angle
 from motionopt.metrics import foot_skating
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
@@ -69,7 +74,7 @@ from priors.heldout import data_folder, held_out_clips
 from priors.latent_density import LatentDensity
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, LatentTask, interpolate, reconstruct, vary
+from problems.latent import FidelityTerm, LatentTask, fuse, interpolate, reconstruct, vary
 from problems.latent_edit import goal_of, latent_edit
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -436,16 +441,20 @@ def spread(clips: list[str], n: int) -> list[str]:
 MIN_USER_SECONDS = 4.0
 
 
+def user_clips(data: Path, clips: list[str], seconds: float) -> tuple[list[str], list[Motion]]:
+    """Section 5's clips: 4 held-out clips of at least ``MIN_USER_SECONDS`` spread over the
+    list (their names), cut to their first ``seconds``."""
+    names = spread([c for c in clips if bvh.load(data / c).duration >= MIN_USER_SECONDS], 4)
+    return names, [m[: int(seconds * m.fps)] for m in (bvh.load(data / name) for name in names)]
+
+
 def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
                  seconds: float = 10.0) -> list[str]:
     """Section 5 (see the module docstring)."""
     from problems.denoise import Denoise
-    from priors.score import score_motion
 
     ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
-    clips = [c for c in clips if bvh.load(data / c).duration >= MIN_USER_SECONDS]
-    motions = [bvh.load(data / name) for name in spread(clips, 4)]
-    motions = [m[: int(seconds * m.fps)] for m in motions]
+    clips, motions = user_clips(data, clips, seconds)
     rows: dict[str, list[list[float]]] = {}
 
     def record(name: str, *values: float) -> None:
@@ -475,14 +484,23 @@ def user_figures(prior, ar_path: Path | None, data: Path, clips: list[str], iter
                 out = task().solve().motion
                 record(f"{tag}: {label}", model_error_mm(prior, out, clip) / 10, time.perf_counter() - t0)
     lines = [f"5. What a user sees: the first {seconds:g} s of {len(motions)} held-out clips "
-             f"({', '.join(spread(clips, 4))}); {iters} L-BFGS iterations where refined"]
+             f"({', '.join(clips)}); {iters} L-BFGS iterations where refined"]
     lines += format_table(["case", "clips", "local mm / error cm", "root path cm", "s/clip"],
                           [[k, len(v), f"{np.mean([r[0] for r in v]):.1f}",
                             f"{np.mean([r[1] for r in v]):.1f}" if len(v[0]) == 3 else "",
                             f"{np.mean([r[-1] for r in v]):.2f}"] for k, v in rows.items()])
-    lines += edit_figures(prior, motions)
-    lines += variation_figures(prior, ar, motions, score_motion)
-    return lines
+    return lines + edit_figures(prior, motions)
+
+
+def variation_section(prior, ar_path: Path | None, data: Path, clips: list[str], iters: int,
+                      seconds: float = 10.0) -> list[str]:
+    """Section 6 (see the module docstring)."""
+    from priors.score import score_motion
+
+    ar = load_prior(ar_path) if ar_path is not None and ar_path.exists() else None
+    names, motions = user_clips(data, clips, seconds)
+    lines = [f"6. Variations, interpolation and fusion: the first {seconds:g} s of {', '.join(names)}"]
+    return lines + variation_figures(prior, ar, motions, score_motion) + fuse_figures(prior, motions, iters)
 
 
 def edit_figures(prior, motions: list[Motion]) -> list[str]:
@@ -535,6 +553,52 @@ def edit_figures(prior, motions: list[Motion]) -> list[str]:
     return lines
 
 
+def heading_local(prior, motion: Motion) -> np.ndarray:
+    """Joint positions (T, J, 3) relative to the root, turned into the root's heading frame,
+    on the prior's joints at its rate: a pose that does not depend on where the body stands
+    or faces (fuse turns B to continue A's heading)."""
+    model = Codec.of(prior).model_motion(motion)
+    pos = torch.from_numpy(model.positions())
+    yaw = heading_angle(torch.from_numpy(model.rotations[:, 0]))
+    turn = R.yaw_quat(-yaw)[:, None].expand(-1, pos.shape[1], -1)
+    return R.quat_apply(turn, pos - pos[:, :1]).numpy()
+
+
+#: Model frames either side of fuse's seam left out of the part errors (its ``blend_frames``).
+FUSE_BAND = 8
+
+
+def fuse_figures(prior, motions: list[Motion], iters: int) -> list[str]:
+    """``fuse`` of each held-out clip's first half with the next clip's second half: how
+    far each part is from its input away from the seam (heading-frame local joint error),
+    and how fast the fastest joint moves across the seam against the inputs' own fastest
+    frames (the plain concatenation jumps there)."""
+    rows = []
+    for label, opts in (("encoder", InversionOptions()), (f"encoder + L-BFGS {iters}", InversionOptions(refine_iters=iters))):
+        err_a, err_b, seam, jump, fast = [], [], [], [], []
+        for a, b in zip(motions, motions[1:] + motions[:1]):
+            at = min(a.num_frames, b.num_frames) // 2
+            res = fuse(prior, a, b, at, opts)
+            t, tb = res.metrics["seam_frame_model"], int(round(at * prior.spec.fps / b.fps))
+            out, la, lb = (heading_local(prior, m) for m in (res.motion, a, b))
+            n = min(len(out) - t, len(lb) - tb)
+            err_a.append(np.linalg.norm(out[:t - FUSE_BAND] - la[:t - FUSE_BAND], axis=-1).mean() * 100)
+            err_b.append(np.linalg.norm(out[t + FUSE_BAND:t + n] - lb[tb + FUSE_BAND:tb + n], axis=-1).mean() * 100)
+
+            def fastest(p: np.ndarray) -> np.ndarray:  # cm per frame of the fastest joint, per frame step
+                return np.linalg.norm(np.diff(p, axis=0), axis=-1).max(-1) * 100
+
+            seam.append(fastest(out)[t - FUSE_BAND:t + FUSE_BAND].max())
+            jump.append(fastest(np.concatenate((la[:t], lb[tb:tb + 1])))[-1])
+            fast.append(np.percentile(np.concatenate((fastest(la), fastest(lb))), 99))
+        rows.append([label, f"{np.mean(err_a):.1f} / {np.mean(err_b):.1f}", f"{max(err_a + err_b):.1f}",
+                     f"{np.mean(seam):.1f} (max {max(seam):.1f})", f"{np.mean(fast):.1f}", f"{np.mean(jump):.1f}"])
+    lines = [f"   fuse (each clip's first half, the next clip's second half; parts judged {FUSE_BAND} frames "
+             "away from the seam; heading-frame local joint error; fastest joint in cm per frame)"]
+    return lines + format_table(["fuse", "part A / B cm", "worst part cm", "across the seam",
+                                 "inputs' 99th pct", "concatenation's jump"], rows)
+
+
 def variation_figures(prior, ar, motions: list[Motion], score_motion) -> list[str]:
     """``vary`` and ``interpolate`` on held-out clips."""
     codec = Codec.of(prior)
@@ -548,19 +612,25 @@ def variation_figures(prior, ar, motions: list[Motion], score_motion) -> list[st
         if ar is not None:
             nll.append(np.mean([score_motion(ar, r.motion).nll_per_frame for r in outs]))
             nll_in.append(score_motion(ar, clip).nll_per_frame)
+    middle = []
     for a, b in zip(motions, motions[1:] + motions[:1]):
         res = interpolate(prior, a, b, 3)
         ends.append((round_trip_errors(prior, res[0].motion, a)[0], round_trip_errors(prior, res[-1].motion, b)[0]))
+        if ar is not None:
+            middle.append(score_motion(ar, res[1].motion).nll_per_frame)
     lines = [f"   vary (4 variations, sigma 0.3): mean pairwise joint distance {np.mean(dist):.1f} cm"]
     if nll:
         lines[-1] += (f"; NLL per frame under the autoregressive prior {np.mean(nll):.1f} against the input's "
                       f"{np.mean(nll_in):.1f}")
     lines.append(f"   interpolate (3 steps): local joint error of the first end to A {np.mean([e[0] for e in ends]):.1f} "
                  f"mm, of the last end to B {np.mean([e[1] for e in ends]):.1f} mm")
+    if middle:
+        lines[-1] += (f"; NLL per frame of the middle step under the autoregressive prior {np.mean(middle):.1f} "
+                      f"(the inputs' {np.mean(nll_in):.1f})")
     return lines
 
 
-SECTIONS = (1, 2, 3, 4, 5)
+SECTIONS = (1, 2, 3, 4, 5, 6)
 
 
 def bench(path: Path, iters: int, reg: float, sections: tuple[int, ...] = SECTIONS) -> list[str]:
@@ -589,6 +659,8 @@ def bench(path: Path, iters: int, reg: float, sections: tuple[int, ...] = SECTIO
         lines += tasks(prior, ar, data, meta["validation_clips"], iters)
     if 5 in sections:
         lines += user_figures(prior, ar, data, meta["validation_clips"], iters)
+    if 6 in sections:
+        lines += variation_section(prior, ar, data, meta["validation_clips"], iters)
     return lines
 
 

@@ -20,7 +20,7 @@ from motionopt.codec import Codec
 from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_angle
 from motionopt.motion import Motion
 from motionopt.solver import InversionOptions, InversionResult, SolverOptions, blend, invert
-from motionopt.smoothing import local_linear
+from motionopt.smoothing import gaussian_smooth, local_linear, smoothstep
 from priors.checkpoint import load_prior_of_kind
 from priors.latent import LatentPrior
 from priors.latent_density import LatentDensity
@@ -150,8 +150,14 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: InversionOptions = 
 def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOptions = InversionOptions(),
          blend_frames: int = 8) -> LatentTaskResult:
     """A's frames before ``at`` followed by B's frames from ``at`` (file frame numbers, MoDi's
-    fusion), passed through the encoder and generator. B's root continues from A's.
-    Refinement keeps both parts but leaves ``blend_frames`` either side of the seam free."""
+    fusion), joined through the encoder and generator. B's root continues from A's.
+
+    The generated motion G(I(.)) replaces the two parts within ``blend_frames`` of the seam
+    and fades back into them over as many frames again (``smoothstep``), so that beyond
+    that the output is each input as it was: generated whole, every frame carried the
+    round trip's error (held-out clips, encoder alone: 1.2-2.7 cm of local joint error
+    on the parts, up to 3.5 cm on one). Refinement fits the codes to both parts outside
+    the seam's ``blend_frames``."""
     pa, pb = prepare(a, prior), prepare(b, prior)
     t = _model_frame(prior, a, at)
     tb = _model_frame(prior, b, at)
@@ -162,7 +168,10 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     weights[max(0, t - blend_frames):t + blend_frames] = 0.0
     term = FidelityTerm(prior, x, weights, options.position_sigma)
     inv = invert(prior, x, terms=[term], options=options)
-    return result_of(prior, inv.x, pa.start, a, inv, {"seam_frame_model": t})
+    away = (np.abs(np.arange(len(x)) - t + 0.5) - blend_frames) / blend_frames  # 0 at the band's edge, 1 a band beyond
+    generated = torch.from_numpy(1.0 - smoothstep(away)).to(x)[:, None]
+    fused = x + generated * (inv.x - x)
+    return result_of(prior, fused, pa.start, a, inv, {"seam_frame_model": t})
 
 
 def at_model_rate(seen: np.ndarray, fps: float, model_fps: float, n: int) -> np.ndarray:
@@ -374,21 +383,38 @@ def interpolate(prior: LatentPrior, a: Motion, b: Motion, steps: int, options: I
     return out
 
 
+#: Gaussian smoothing (frames at the prior's rate) of a variation's change from the input:
+#: its generated difference carries the generator's frame-to-frame jitter. On 4 held-out
+#: Bandai clips (10 s, sigma 0.3) the variations' NLL per frame under the autoregressive
+#: prior was -42 unsmoothed and -49 at 2 frames (4 frames: the same), the input's -63.
+VARIATION_SMOOTH_FRAMES = 2.0
+
+
 def vary(prior: LatentPrior, motion: Motion, count: int, sigma: float, seed: int = 0,
          options: InversionOptions = InversionOptions()) -> list[LatentTaskResult]:
     """``count`` variations: the motion's codes plus Gaussian offsets of ``sigma`` standard
     deviations along every principal direction of single codes (MoDi's crowds, sigma
-    0.1-0.8), one offset per variation shared by all windows and codes."""
+    0.1-0.8), one offset per variation shared by all windows and codes.
+
+    Each variation is the input plus what the offset changes in the generated motion,
+    G(w + delta) - G(w), smoothed over ``VARIATION_SMOOTH_FRAMES``: the input's own detail,
+    which the round trip G(I(x)) loses (1-3 cm of joint error), is kept, and sigma 0 gives
+    the input back. Generated whole, held-out Bandai variations scored 26 nats per frame
+    less likely than their input under the autoregressive prior (the round trip alone
+    costs 8-46)."""
     if count < 1:
         raise ValueError("--count must be at least 1")
     prep, inv = invert_input(prior, motion, options)
     g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        reproduced = generate_clip(prior, inv.wplus, inv, len(prep.x))
     out = []
     for i in range(count):
         eps = torch.randn(prior.config.w_dim, generator=g) * sigma
         delta = (eps * prior.w_scales) @ prior.w_components
         with torch.no_grad():
-            x = generate_clip(prior, inv.wplus + delta, inv, len(prep.x))
+            change = generate_clip(prior, inv.wplus + delta, inv, len(prep.x)) - reproduced
+            x = prep.x + gaussian_smooth(change[None], VARIATION_SMOOTH_FRAMES)[0]
         out.append(result_of(prior, x, prep.start, motion, inv, {"variation": i, "sigma": sigma, "seed": seed},
                              n_frames=motion.num_frames))
     return out

@@ -224,6 +224,25 @@ def test_fuse_output_keeps_the_file_layout(prior):
         fuse(prior, a, b, at=10_000)
 
 
+def test_fuse_keeps_each_part_beyond_the_seam_and_joins_them(prior):
+    """Two seam bands from the seam the output is A before it and B after it, joint for
+    joint; across the seam it moves no faster than a jump-free clip (the plain
+    concatenation jumps there)."""
+    a, b = (bvh.load(p) for p in cmu_clips())
+    codec = Codec.of(prior)
+    r = fuse(prior, a, b, at=160)  # A at 120 fps, B at 60: model frames 40 and 80
+    t, tb = r.metrics["seam_frame_model"], 80
+    out, ma, mb = r.model_motion, codec.model_motion(a), codec.model_motion(b)
+    assert t == 40 and out.num_frames >= t + mb.num_frames - tb
+    assert np.abs(out.rotations[: t - 16, 1:] - ma.rotations[: t - 16, 1:]).max() < 1e-4
+    after = mb.num_frames - tb - 16
+    assert np.abs(out.rotations[t + 16:t + 16 + after, 1:] - mb.rotations[tb + 16:, 1:]).max() < 1e-4
+    local = out.positions() - out.positions()[:, :1]
+    cat = np.concatenate((ma.positions()[:t] - ma.positions()[:t, :1], mb.positions()[tb:] - mb.positions()[tb:, :1]))
+    step = lambda p: np.linalg.norm(np.diff(p, axis=0), axis=-1).max(-1)  # noqa: E731
+    assert step(local)[t - 1] < 0.5 * step(cat)[t - 1]
+
+
 def test_commands_write_bvh(trained, tmp_path, capsys):
     ckpt = str(trained[0])
     a, b = (str(p) for p in cmu_clips())
@@ -495,3 +514,21 @@ def test_phases_are_checked():
         LatentTrainConfig(phases=("masked",))
     with pytest.raises(ValueError, match="in that order"):
         LatentTrainConfig(phases=("masked", "autoencoder"))
+
+
+def test_variations_keep_the_input_and_add_what_the_offset_changes(prior):
+    """At sigma 0 ``vary`` gives the input back (its detail is not lost to the round
+    trip); at sigma 0.5 the variations differ from it and from each other."""
+    from problems.latent import vary
+
+    clip = bvh.load(cmu_clips()[0])
+    clip = clip[: int(3 * clip.fps)]
+    codec = Codec.of(prior)
+    model = codec.model_motion(clip).positions()
+    same = codec.model_motion(vary(prior, clip, 1, 0.0)[0].motion).positions()
+    trip = codec.model_motion(reconstruct(prior, clip, InversionOptions()).motion).positions()
+    assert np.abs(same - model).max() < 1e-3
+    assert np.abs(trip - model).mean() > 10 * np.abs(same - model).mean()
+    outs = [codec.model_motion(r.motion).positions() for r in vary(prior, clip, 2, 0.5)]
+    assert all(np.linalg.norm(p - model, axis=-1).mean() > 0.005 for p in outs)
+    assert np.linalg.norm(outs[0] - outs[1], axis=-1).mean() > 0.005
