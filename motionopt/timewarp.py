@@ -16,6 +16,9 @@ import numpy as np
 #: pose is held while the other motion runs on.
 STEPS = ((1, 1), (1, 2), (2, 1))
 
+#: Longest clip (frames) aligned frame by frame; longer ones are aligned at a coarser rate.
+MAX_ALIGN_FRAMES = 1500
+
 
 @dataclass(frozen=True)
 class Alignment:
@@ -26,28 +29,35 @@ class Alignment:
     b: np.ndarray
 
 
+def played_in(f: np.ndarray, n: int) -> np.ndarray:
+    """Frames ``f (T, F)`` linearly resampled to ``n`` frames over the same span."""
+    t = np.linspace(0, len(f) - 1, n)
+    lo = np.floor(t).astype(int).clip(max=len(f) - 2)
+    frac = (t - lo)[:, None]
+    return f[lo] * (1 - frac) + f[lo + 1] * frac
+
+
 def align(fa: np.ndarray, fb: np.ndarray) -> Alignment:
     """The alignment of features ``fa (Ta, F)`` and ``fb (Tb, F)`` of least summed squared
     distance between corresponding frames, taking the ``STEPS``. B is first played in A's
     number of frames, so the slope limit is relative to the pace that covers both clips
-    and clips of any two lengths align."""
+    and clips of any two lengths align; clips longer than ``MAX_ALIGN_FRAMES`` are aligned
+    at a coarser rate (the tables grow with the square of the length)."""
     ta, tb = len(fa), len(fb)
     if ta < 2 or tb < 2:
         raise ValueError("both motions need at least two frames to be aligned")
-    tb_scaled = np.linspace(0, tb - 1, ta)
-    lo = np.floor(tb_scaled).astype(int).clip(max=tb - 2)
-    frac = (tb_scaled - lo)[:, None]
-    fb_at_a = fb[lo] * (1 - frac) + fb[lo + 1] * frac
-    cost = ((fa ** 2).sum(-1)[:, None] + (fb_at_a ** 2).sum(-1)[None, :] - 2 * fa @ fb_at_a.T).clip(min=0)
-    total = np.full((ta, ta), np.inf)
-    choice = np.zeros((ta, ta), np.int8)
+    m = min(ta, MAX_ALIGN_FRAMES)
+    fa_m, fb_m = played_in(fa, m), played_in(fb, m)
+    cost = ((fa_m ** 2).sum(-1)[:, None] + (fb_m ** 2).sum(-1)[None, :] - 2 * fa_m @ fb_m.T).clip(min=0)
+    total = np.full((m, m), np.inf)
+    choice = np.zeros((m, m), np.int8)
     total[0, 0] = cost[0, 0]
-    for i in range(1, ta):
-        options = np.full((len(STEPS), ta), np.inf)
+    for i in range(1, m):
+        options = np.full((len(STEPS), m), np.inf)
         for s, (di, dj) in enumerate(STEPS):
             if i - di < 0:
                 continue
-            via = np.zeros(ta)  # the cell a two-frame step passes over
+            via = np.zeros(m)  # the cell a two-frame step passes over
             if di == 2:
                 via = cost[i - 1]
             elif dj == 2:
@@ -55,15 +65,13 @@ def align(fa: np.ndarray, fb: np.ndarray) -> Alignment:
             options[s, dj:] = total[i - di, :-dj] + via[dj:]
         choice[i] = options.argmin(0)
         total[i] = cost[i] + options.min(0)
-    if not np.isfinite(total[-1, -1]):
-        raise ValueError("the motions cannot be aligned within the allowed change of pace")
-    i, j, path = ta - 1, ta - 1, [(ta - 1, ta - 1)]
+    i, j, path = m - 1, m - 1, [(m - 1, m - 1)]   # the diagonal always reaches the corner
     while (i, j) != (0, 0):
         di, dj = STEPS[choice[i, j]]
         i, j = i - di, j - dj
         path.append((i, j))
-    knots = np.array(path[::-1], float)
-    return Alignment(knots[:, 0], knots[:, 1] * (tb - 1) / (ta - 1))
+    knots = np.array(path[::-1], float) / (m - 1)
+    return Alignment(knots[:, 0] * (ta - 1), knots[:, 1] * (tb - 1))
 
 
 def blend_times(alignment: Alignment, alpha: float, n_frames: int) -> tuple[np.ndarray, np.ndarray]:

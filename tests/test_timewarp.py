@@ -39,3 +39,13 @@ def test_blend_ends_play_the_inputs_as_given():
 def test_alignment_needs_two_frames():
     with pytest.raises(ValueError, match="two frames"):
         align(np.zeros((1, 2)), np.zeros((5, 2)))
+
+
+def test_long_clips_are_aligned_at_a_coarser_rate():
+    from motionopt.timewarp import MAX_ALIGN_FRAMES
+
+    frames = 2 * MAX_ALIGN_FRAMES
+    al = align(gait(frames, 60, 0), gait(frames, 60, 16))
+    assert al.a[-1] == pytest.approx(frames - 1) and len(al.a) <= 2 * MAX_ALIGN_FRAMES
+    inner = (al.a > 0.2 * frames) & (al.a < 0.8 * frames)
+    assert np.median(al.a[inner] - al.b[inner]) == pytest.approx(16, abs=3)
