@@ -568,6 +568,11 @@ def heading_local(prior, motion: Motion) -> np.ndarray:
 FUSE_BAND = 8
 
 
+def fastest(p: np.ndarray) -> np.ndarray:
+    """Cm per frame of the fastest joint of positions ``p (T, J, 3)``, per frame step."""
+    return np.linalg.norm(np.diff(p, axis=0), axis=-1).max(-1) * 100
+
+
 def fuse_figures(prior, motions: list[Motion], iters: int) -> list[str]:
     """``fuse`` of each held-out clip's first half with the next clip's second half: how
     far each part is from its input away from the seam (heading-frame local joint error),
@@ -584,9 +589,6 @@ def fuse_figures(prior, motions: list[Motion], iters: int) -> list[str]:
             n = min(len(out) - t, len(lb) - tb)
             err_a.append(np.linalg.norm(out[:t - FUSE_BAND] - la[:t - FUSE_BAND], axis=-1).mean() * 100)
             err_b.append(np.linalg.norm(out[t + FUSE_BAND:t + n] - lb[tb + FUSE_BAND:tb + n], axis=-1).mean() * 100)
-
-            def fastest(p: np.ndarray) -> np.ndarray:  # cm per frame of the fastest joint, per frame step
-                return np.linalg.norm(np.diff(p, axis=0), axis=-1).max(-1) * 100
 
             seam.append(fastest(out)[t - FUSE_BAND:t + FUSE_BAND].max())
             jump.append(fastest(np.concatenate((la[:t], lb[tb:tb + 1])))[-1])

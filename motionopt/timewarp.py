@@ -29,12 +29,16 @@ class Alignment:
     b: np.ndarray
 
 
+def frames_at(f: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Frames ``f (T, F)`` at fractional frame numbers ``times``, linearly interpolated."""
+    lo = np.floor(times).astype(int).clip(0, max(len(f) - 2, 0))
+    frac = (times - lo)[:, None]
+    return f[lo] * (1 - frac) + f[np.minimum(lo + 1, len(f) - 1)] * frac
+
+
 def played_in(f: np.ndarray, n: int) -> np.ndarray:
     """Frames ``f (T, F)`` linearly resampled to ``n`` frames over the same span."""
-    t = np.linspace(0, len(f) - 1, n)
-    lo = np.floor(t).astype(int).clip(max=len(f) - 2)
-    frac = (t - lo)[:, None]
-    return f[lo] * (1 - frac) + f[lo + 1] * frac
+    return frames_at(f, np.linspace(0, len(f) - 1, n))
 
 
 def align(fa: np.ndarray, fb: np.ndarray) -> Alignment:

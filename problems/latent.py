@@ -21,7 +21,7 @@ from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_an
 from motionopt.motion import Motion
 from motionopt.solver import InversionOptions, InversionResult, SolverOptions, blend, invert
 from motionopt.smoothing import gaussian_smooth, local_linear, smoothstep
-from motionopt.timewarp import align, blend_times
+from motionopt.timewarp import align, blend_times, frames_at
 from priors.checkpoint import load_prior_of_kind
 from priors.latent import LatentPrior
 from priors.latent_density import LatentDensity
@@ -332,23 +332,15 @@ def generate_clip(prior: LatentPrior, codes: Tensor, inv: InversionResult, n_fra
 
 def played_at(prior: LatentPrior, x: Tensor, times: np.ndarray) -> Tensor:
     """Normalised features ``x (T, D)`` played at fractional frames ``times`` (increasing):
-    every channel interpolated linearly in time, and the per-frame root steps and turns
-    scaled by the local pace, so that the clip covers the same path and turns as before."""
-    raw = Codec.of(prior).raw(x.double())
-    t = torch.as_tensor(times, dtype=raw.dtype)
-    i0 = t.floor().long().clamp(0, max(len(x) - 2, 0))
-    f = (t - i0)[:, None]
-    out = raw[i0] * (1 - f) + raw[(i0 + 1).clamp(max=len(x) - 1)] * f
+    every channel interpolated linearly in time (``timewarp.frames_at``), and the per-frame
+    root steps and turns scaled by the local pace, so that the clip covers the same path
+    and turns as before."""
+    out = torch.from_numpy(frames_at(Codec.of(prior).raw(x.double()).numpy(), times))
     s = prior.spec.slices()
-    pace = torch.as_tensor(np.gradient(times) if len(times) > 1 else np.ones(1), dtype=raw.dtype)[:, None]
+    pace = torch.from_numpy(np.gradient(times) if len(times) > 1 else np.ones(1))[:, None]
     for k in ("root_delta", "yaw_delta"):
         out[:, s[k]] *= pace
     return prior.normalizer.normalize(out).float()
-
-
-def resampled(prior: LatentPrior, x: Tensor, n: int) -> Tensor:
-    """Normalised features ``x (T, D)`` played evenly in ``n`` frames (``played_at``)."""
-    return played_at(prior, x, np.linspace(0, len(x) - 1, n))
 
 
 def between(a: RootStart, b: RootStart, alpha: float) -> RootStart:

@@ -332,7 +332,7 @@ def test_encoder_reconstruction_of_a_long_clip_follows_the_input_path(prior):
 
 def test_interpolation_between_clips_of_different_lengths(prior):
     """Each step lasts the blend of the two lengths; the first as long as A, the last as B."""
-    from problems.latent import interpolate, resampled
+    from problems.latent import interpolate, played_at
 
     a, b = (bvh.load(p) for p in cmu_clips())
     b = b[: a.num_frames * 2 // 3]
@@ -343,8 +343,8 @@ def test_interpolation_between_clips_of_different_lengths(prior):
     assert steps[0].motion.num_frames != steps[-1].motion.num_frames
     assert lengths[0] < steps[1].motion.num_frames < lengths[1]
     x = tiny_dataset().windows("train", WINDOW, 4)[0]
-    assert torch.allclose(resampled(prior, x, len(x)), x, atol=1e-5)
-    slow = Codec.of(prior).raw(resampled(prior, x, 2 * len(x)).double())
+    assert torch.allclose(played_at(prior, x, np.arange(len(x), dtype=float)), x, atol=1e-5)
+    slow = Codec.of(prior).raw(played_at(prior, x, np.linspace(0, len(x) - 1, 2 * len(x))).double())
     steps_sum = slow[:, prior.spec.slices()["root_delta"]].sum(0)
     assert torch.allclose(steps_sum, Codec.of(prior).raw(x.double())[:, prior.spec.slices()["root_delta"]].sum(0),
                           rtol=0.05, atol=0.02)
