@@ -37,9 +37,10 @@ clips named in its metadata, loaded from the data folder named there:
    percent, the style classifier's probability of a style) with the root path change and
    the feet's sliding against strength 0's.
 6. Variations, interpolation and fusion on section 5's clips: ``vary`` (mean pairwise
-   joint distance of 4 variations, and their NLL per frame under the autoregressive
-   prior beside the input's), ``interpolate`` (how far each end is from its input, and
-   the middle step's NLL under the autoregressive prior) and
+   joint distance of 4 variations) and the middle step of ``interpolate``, as generated
+   and settled under the autoregressive prior (``problems.settle``), each with its NLL
+   per frame under that prior, jerk and foot skating beside the inputs'; how far each
+   end of ``interpolate`` is from its input; and
    ``fuse`` (each part's distance from its input, the fastest joint across the seam).
 
 Run ``python bench/latent.py [CHECKPOINT ...] [--threads N] [--sections 1 4 ...]``; the
@@ -58,12 +59,12 @@ import torch
 from torch import Tensor, nn
 
 from motionopt import attributes as A
-from motionopt import bvh
+from motionopt import bvh, naturalness
 from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.dataset import build_dataset
-from motionopt.features import heading_angle
-from motionopt.metrics import foot_skating
+from motionopt.features import estimate_ground, heading_angle
+from motionopt.metrics import foot_skating, jerk
 from motionopt.metrics_latent import frechet_distance, local_position_error_mm, root_position_error_mm
 from motionopt.motion import Motion
 from motionopt.noise import capture_noise, position_noise
@@ -74,7 +75,7 @@ from priors.heldout import data_folder, held_out_clips
 from priors.latent_density import LatentDensity
 from priors.semantic import AttributeScorer, Direction, directions_of, edit_codes
 from priors.style import StyleClassifier, style_classifier_of
-from problems.latent import FidelityTerm, LatentTask, fuse, interpolate, reconstruct, vary
+from problems.latent import FidelityTerm, LatentTask, fuse, interpolate, reconstruct, settled, vary
 from problems.latent_edit import goal_of, latent_edit
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -601,34 +602,71 @@ def fuse_figures(prior, motions: list[Motion], iters: int) -> list[str]:
                                  "inputs' 99th pct", "concatenation's jump"], rows)
 
 
+def naturalness_row(prior, ar, label: str, outs: list[Motion], score_motion, spread_cm: str = "",
+                    change_cm: str = "") -> list[object]:
+    """One row of section 6's table: mean NLL per frame under the autoregressive prior,
+    mean jerk (m/s^3) and foot skating (cm/s) at the prior's rate, over ``outs``."""
+    fps, cidx = prior.spec.fps, prior.spec.contact_indices()
+    models = [Codec.of(prior).model_motion(m) for m in outs]
+    pos = [torch.from_numpy(m.positions()) for m in models]
+    nll, in_range = "-", "-"
+    if ar is not None:
+        nll = f"{np.mean([score_motion(ar, m).nll_per_frame for m in outs]):.1f}"
+        known, good, total = naturalness.HumanRange.of_prior(ar), 0, 0
+        for m, p in zip(models, pos):
+            seconds = naturalness.per_second(ar, m, estimate_ground(p.numpy(), cidx))
+            flagged = {t for v in naturalness.out_of_range(seconds, known).values() for t in v}
+            good, total = good + len(seconds) - len(flagged), total + len(seconds)
+        in_range = f"{good} of {total}"
+    return [label, spread_cm, nll, f"{np.mean([float(jerk(p, fps)) for p in pos]):.0f}",
+            f"{np.mean([float(foot_skating(p, fps, cidx)) * 100 for p in pos]):.1f}", in_range, change_cm]
+
+
 def variation_figures(prior, ar, motions: list[Motion], score_motion) -> list[str]:
-    """``vary`` and ``interpolate`` on held-out clips."""
+    """``vary`` and ``interpolate`` on held-out clips, as generated and settled under the
+    autoregressive prior (``problems.latent.settled``) beside the inputs."""
     codec = Codec.of(prior)
-    dist, nll, nll_in, ends = [], [], [], []
+
+    def pairwise_cm(outs: list[Motion]) -> float:
+        pos = [codec.model_motion(m).positions() for m in outs]
+        pos = [p - p[:, :1] * [1, 0, 1] for p in pos]  # root-relative horizontally, as a viewer compares poses
+        return float(np.mean([np.linalg.norm(a - b, axis=-1).mean() * 100
+                              for i, a in enumerate(pos) for b in pos[i + 1:]]))
+
+    made, settled_ = {"vary": [], "middle": []}, {"vary": [], "middle": []}
+    dist, dist_settled, ends = [], [], []
     for clip in motions:
         outs = vary(prior, clip, 4, 0.3)
-        pos = [codec.model_motion(r.motion).positions() for r in outs]
-        pos = [p - p[:, :1] * [1, 0, 1] for p in pos]  # root-relative horizontally, as a viewer compares poses
-        dist.append(np.mean([np.linalg.norm(a - b, axis=-1).mean() * 100
-                             for i, a in enumerate(pos) for b in pos[i + 1:]]))
+        made["vary"] += [r.motion for r in outs]
+        dist.append(pairwise_cm([r.motion for r in outs]))
         if ar is not None:
-            nll.append(np.mean([score_motion(ar, r.motion).nll_per_frame for r in outs]))
-            nll_in.append(score_motion(ar, clip).nll_per_frame)
-    middle = []
+            calm = [settled(r, ar) for r in outs]
+            settled_["vary"] += calm
+            dist_settled.append(pairwise_cm([r.motion for r in calm]))
     for a, b in zip(motions, motions[1:] + motions[:1]):
         res = interpolate(prior, a, b, 3)
         ends.append((round_trip_errors(prior, res[0].motion, a)[0], round_trip_errors(prior, res[-1].motion, b)[0]))
+        made["middle"].append(res[1].motion)
         if ar is not None:
-            middle.append(score_motion(ar, res[1].motion).nll_per_frame)
-    lines = [f"   vary (4 variations, sigma 0.3): mean pairwise joint distance {np.mean(dist):.1f} cm"]
-    if nll:
-        lines[-1] += (f"; NLL per frame under the autoregressive prior {np.mean(nll):.1f} against the input's "
-                      f"{np.mean(nll_in):.1f}")
+            settled_["middle"].append(settled(res[1], ar))
+    change = {k: f"{np.mean([r.metrics['settle_change_cm'] for r in v]):.1f}" for k, v in settled_.items() if v}
+    rows = [naturalness_row(prior, ar, "inputs", motions, score_motion),
+            naturalness_row(prior, ar, "vary, generated", made["vary"], score_motion, f"{np.mean(dist):.1f}")]
+    if ar is not None:
+        rows.append(naturalness_row(prior, ar, "vary, settled", [r.motion for r in settled_["vary"]], score_motion,
+                                    f"{np.mean(dist_settled):.1f}", change["vary"]))
+    rows.append(naturalness_row(prior, ar, "interpolate middle, generated", made["middle"], score_motion))
+    if ar is not None:
+        rows.append(naturalness_row(prior, ar, "interpolate middle, settled", [r.motion for r in settled_["middle"]],
+                                    score_motion, "", change["middle"]))
+    lines = ["   vary (4 variations per clip, sigma 0.3) and the middle of interpolate (3 steps, each clip to the next), "
+             "as generated and settled under the autoregressive prior; pairwise: mean joint distance between "
+             "variations; NLL per frame under the autoregressive prior; jerk m/s^3; skating cm/s; seconds in range: "
+             "seconds with every naturalness measure within the held-out data's range (motionopt.naturalness); "
+             "change: settled from generated"]
+    lines += format_table(["motion", "pairwise cm", "NLL", "jerk", "skating", "seconds in range", "change cm"], rows)
     lines.append(f"   interpolate (3 steps): local joint error of the first end to A {np.mean([e[0] for e in ends]):.1f} "
                  f"mm, of the last end to B {np.mean([e[1] for e in ends]):.1f} mm")
-    if middle:
-        lines[-1] += (f"; NLL per frame of the middle step under the autoregressive prior {np.mean(middle):.1f} "
-                      f"(the inputs' {np.mean(nll_in):.1f})")
     return lines
 
 

@@ -532,3 +532,27 @@ def test_variations_keep_the_input_and_add_what_the_offset_changes(prior):
     outs = [codec.model_motion(r.motion).positions() for r in vary(prior, clip, 2, 0.5)]
     assert all(np.linalg.norm(p - model, axis=-1).mean() > 0.005 for p in outs)
     assert np.linalg.norm(outs[0] - outs[1], axis=-1).mean() > 0.005
+
+
+def test_vary_and_interpolate_settle_under_the_autoregressive_prior(trained, tmp_path, capsys):
+    """By default each variation (and each step between the ends) is settled under the
+    shipped autoregressive prior and its report says by how much; --no-settle writes the
+    generated motion; a latent checkpoint is refused as --settle-prior."""
+    ckpt = str(trained[0])
+    b = str(cmu_clips()[1])
+    runs = {}
+    for flag in ([], ["--no-settle"]):
+        report = tmp_path / f"vary{len(flag)}.json"
+        argv = ["vary", b, "--count", "1", "--out-dir", str(tmp_path / f"v{len(flag)}"), "--prior", ckpt,
+                "--report", str(report), "-q", *flag]
+        assert main(argv) == 0, capsys.readouterr().err
+        runs[bool(flag)] = json.loads(report.read_text())["outputs"][0]
+    settled, generated = runs[False], runs[True]
+    assert "settle_change_cm" not in generated["metrics"]
+    assert 0 < settled["metrics"]["settle_change_cm"] < 10
+    assert settled["metrics"]["settle_nll"] < settled["metrics"]["settle_nll_start"]
+    moved = (bvh.load(settled["output"]).positions() - bvh.load(generated["output"]).positions())
+    assert np.abs(moved).max() > 1e-3
+    argv = ["vary", b, "--count", "1", "--out-dir", str(tmp_path / "x"), "--prior", ckpt, "--settle-prior", ckpt]
+    assert main(argv) == 1 and "needs an autoregressive prior" in capsys.readouterr().err
+    assert main(argv + ["--no-settle"]) == 1 and "drop --settle-prior or --no-settle" in capsys.readouterr().err

@@ -132,7 +132,7 @@ class Window:
         fix the contact weights (``MAPObjective.contact_weights`` there, except where
         ``known_contacts (T, C)`` holds a value: the weights an earlier window fixed for an
         overlapping frame, so that a foot is not planted in one window and free in the
-        next) and the prior's predicted log-std there."""
+        next) and, with the objective's ``hold_prior_spread``, the prior's predicted log-std there."""
         norm = self.obj.prior.normalizer
         raw = norm.denormalize(self.x[self.free].double())
         base = R.sixd_to_matrix(raw[:, 4:self.p].reshape(self.n_free, self.n_rot, 6))
@@ -158,7 +158,8 @@ class Window:
             self.contacts = self.obj.contact_weights(st)
             if known_contacts is not None:
                 self.contacts = torch.where(torch.isnan(known_contacts), self.contacts, known_contacts.to(self.contacts))
-            _, self.log_std, _ = self.obj.prior.gaussian(self.x, self.context)
+            if self.obj.hold_prior_spread:
+                _, self.log_std, _ = self.obj.prior.gaussian(self.x, self.context)
         self.best = (math.inf, None)
         self.best_terms, self.first_terms, self.seen = {}, None, {}
 

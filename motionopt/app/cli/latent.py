@@ -72,21 +72,25 @@ def register(sub) -> None:
 
     p = sub.add_parser("vary", help="variations of a motion: random offsets around its latent code",
                        description="Encode the motion into W+ and generate --count motions from random offsets "
-                       "around its code (--seed draws them), written as DIR/INPUT_var_00.bvh and on. --plot "
-                       "draws each against the input.")
+                       "around its code (--seed draws them), each settled under the autoregressive prior (a MAP "
+                       "solve within a few centimetres that makes it natural; --no-settle: as generated), written as "
+                       "DIR/INPUT_var_00.bvh and on. --plot draws each against the input.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--count", type=int, default=8)
     p.add_argument("--sigma", type=float, default=0.3, help="offset size in standard deviations of the codes (0.1-0.8)")
     _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
+    _settle_options(p, "each variation")
     p.set_defaults(func=cmd_vary)
 
     p = sub.add_parser("interpolate", help="motions between two motions, by interpolating their latent codes",
                        description="Encode A and B into W+ and generate --steps motions between their codes, A "
-                       "and B included, written as DIR/A_to_B_00.bvh and on. --plot draws each against A and B.")
+                       "and B included, the steps between settled under the autoregressive prior (--no-settle: as "
+                       "generated), written as DIR/A_to_B_00.bvh and on. --plot draws each against A and B.")
     p.add_argument("a", metavar="A.bvh", help="first BVH file")
     p.add_argument("b", metavar="B.bvh", help="second BVH file (same skeleton)")
     p.add_argument("--steps", type=int, default=5, help="number of motions, both ends included")
     _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
+    _settle_options(p, "each step between the ends")
     p.set_defaults(func=cmd_interpolate)
 
 
@@ -143,6 +147,27 @@ def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, o
     s.add_argument("--pso", type=int, default=0, metavar="ITERS", help="PSO iterations before refinement")
     s.add_argument("--reg", type=float, default=0.01,
                    help="weight keeping refined codes near the training codes' distribution")
+
+
+def _settle_options(p: argparse.ArgumentParser, what: str) -> None:
+    """--settle-prior and --no-settle: the autoregressive prior that settles ``what``."""
+    g = p.add_argument_group("settling under the autoregressive prior")
+    g.add_argument("--settle-prior", default=None, metavar="CKPT",
+                   help=f"autoregressive prior that settles {what} (a MAP solve within a few centimetres that makes "
+                        "it natural; default: the shipped one for the skeleton)")
+    g.add_argument("--no-settle", action="store_true", help="write the generated motions as they are")
+
+
+def _settle_prior(args: argparse.Namespace, motion):
+    """The autoregressive prior that settles the outputs, or None with --no-settle."""
+    from priors.checkpoint import load_prior_of_kind
+
+    if args.no_settle:
+        if args.settle_prior:
+            raise UserError("--no-settle writes the generated motions as they are; drop --settle-prior or --no-settle")
+        return None
+    return load_prior_of_kind(motion.skeleton, args.settle_prior, "CCNetPrior", f"{args.command} --settle-prior",
+                              "or pass --no-settle")[0]
 
 
 def _options(args: argparse.Namespace):
@@ -265,8 +290,8 @@ def cmd_vary(args: argparse.Namespace) -> int:
 
     stem = Path(args.input).stem + "_var"
     run = _start(args, ("input",), [f"{stem}_{i:02d}" for i in range(args.count)])
-    return _finish(run, vary(run.prior, run.motions[0], args.count, args.sigma, args.seed, _options(args)),
-                   "variation")
+    return _finish(run, vary(run.prior, run.motions[0], args.count, args.sigma, args.seed, _options(args),
+                             _settle_prior(args, run.motions[0])), "variation")
 
 
 def cmd_interpolate(args: argparse.Namespace) -> int:
@@ -275,4 +300,5 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
     stem = f"{Path(args.a).stem}_to_{Path(args.b).stem}"
     run = _start(args, ("a", "b"), [f"{stem}_{i:02d}" for i in range(args.steps)])
     a, b = run.motions
-    return _finish(run, interpolate(run.prior, a, b, args.steps, _options(args)), "interpolated")
+    return _finish(run, interpolate(run.prior, a, b, args.steps, _options(args), _settle_prior(args, a)),
+                   "interpolated")
