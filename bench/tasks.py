@@ -26,7 +26,8 @@ clips shorter than a section needs are left out of it.
    2c: a 0.25 s glitch of 30 degrees on one knee.
 3. In-betweening (LAFAN1 protocol): 10 context frames, a gap of 5, 15 or 30 frames, 1
    target frame; L2P (metres, unnormalised), L2Q and NPSS (world quaternions) against
-   SLERP of local rotations plus linear root interpolation.
+   SLERP of local rotations plus linear root interpolation; ours with the autoregressive
+   prior (the default) and with ``--method latent`` (the shipped latent prior).
 4. Prefix completion: 1 s continuation after 1 s of a clip, from every 2 s of each
    held-out clip: MPJPE to the real
    continuation against zero-velocity (last frame held) and constant-velocity (root
@@ -64,12 +65,13 @@ from motionopt.noise import glitch, position_noise  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
 from motionopt.solver import Problem, SolverOptions  # noqa: E402
 from motionopt.solver.diagnostics import energies_at  # noqa: E402
-from priors.checkpoint import load_prior  # noqa: E402
+from priors.checkpoint import CheckpointError, load_prior  # noqa: E402
 from priors.heldout import data_folder, held_out_clips  # noqa: E402
 from problems.common import prepare  # noqa: E402
 from problems.denoise import Denoise, denoise_options  # noqa: E402
 from problems.edit import JointTarget, SpatialEdit  # noqa: E402
 from problems.inbetween import Inbetween, complete  # noqa: E402
+from problems.latent import LatentTask, gap_inversion_options, load_latent_for  # noqa: E402
 from problems.path_follow import PathFollow  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results" / "tasks.txt"
@@ -373,12 +375,23 @@ def slerp_fill(m: Motion, a: int, b: int) -> Motion:
 
 
 def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list[str]:
+    """The LAFAN1 protocol against SLERP: ours with the autoregressive prior (``Inbetween``,
+    the default) and, where a latent prior for the skeleton ships, ``inbetween --method
+    latent`` (``LatentTask``: the masked encoder, L-BFGS, the MAP solve of the gap)."""
     rows = []
     cidx = prior.spec.contact_indices()
+    try:
+        latent = load_latent_for(clips[0][1])
+    except CheckpointError:
+        latent = None
+    ours = {"ours": lambda seg, keep: Inbetween(seg, keep, prior).solve().model_motion}
+    if latent is not None:
+        ours["ours, --method latent"] = lambda seg, keep: LatentTask(seg, latent, keep,
+                                                                      gap_inversion_options()).solve().motion
     for gap in (5, 15, 30):
-        res = {"SLERP + linear root": [], "ours": []}
-        skate = {"SLERP + linear root": 0.0, "ours": 0.0, "mocap": 0.0}
-        secs, n_syn = 0.0, 0
+        res = {"SLERP + linear root": [], **{k: [] for k in ours}}
+        skate = {k: 0.0 for k in res} | {"mocap": 0.0}
+        secs, n_syn = dict.fromkeys(ours, 0.0), 0
         for name, m in clips:
             total = 10 + gap + 1
             for k in range(starts):
@@ -386,18 +399,19 @@ def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list
                 if s0 + total > m.num_frames:
                     break
                 seg = m[s0:s0 + total]
-                t0 = time.perf_counter()
-                ours = Inbetween(seg, [(0, 10), (10 + gap, total)], prior).solve().model_motion
-                secs += time.perf_counter() - t0
+                outs = {"SLERP + linear root": slerp_fill(seg, 10, 10 + gap)}
+                for label, fill in ours.items():
+                    t0 = time.perf_counter()
+                    outs[label] = fill(seg, [(0, 10), (10 + gap, total)])
+                    secs[label] += time.perf_counter() - t0
                 n_syn += gap
-                slerp = slerp_fill(seg, 10, 10 + gap)
                 # feet in the gap (and its step in and out), each clip judged against its own resting heights
                 rest = rest_heights(torch.from_numpy(seg.positions()), cidx)
-                for label, out in (("SLERP + linear root", slerp), ("ours", ours), ("mocap", seg)):
+                for label, out in (*outs.items(), ("mocap", seg)):
                     feet = torch.from_numpy(out.positions()[9:11 + gap])
                     sk = foot_skating(feet, seg.fps, cidx, rest=rest)
                     skate[label] += 0.0 if torch.isnan(sk) else float(sk)
-                for label, out in (("SLERP + linear root", slerp), ("ours", ours)):
+                for label, out in outs.items():
                     pp = torch.from_numpy(out.positions()[10:10 + gap])
                     pt = torch.from_numpy(seg.positions()[10:10 + gap])
                     qp = torch.from_numpy(global_quats(out)[10:10 + gap])
@@ -407,7 +421,7 @@ def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list
         for label, v in res.items():
             n = float(npss(torch.stack([a[2] for a in v]), torch.stack([a[3] for a in v])))
             rows.append([str(gap), label, len(v), float(np.mean([a[0] for a in v])), float(np.mean([a[1] for a in v])),
-                         n, skate[label] / max(skate["mocap"], 1e-9), f"{n_syn / secs:.0f}" if label == "ours" else ""])
+                         n, skate[label] / max(skate["mocap"], 1e-9), f"{n_syn / secs[label]:.0f}" if label in secs else ""])
     lines = ["3. In-betweening (LAFAN1 protocol: 10 context frames, gap, 1 target frame; windows every 40 frames "
              "from the start of each held-out clip, at most 5 per clip; L2P in metres without LAFAN1's normalisation; "
              "skating: of the feet within 3 cm of their resting height in the gap, summed over the cases, over the "

@@ -22,7 +22,8 @@ from motionopt.prior import LatentMotionPrior
 from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
 from motionopt.rotations import quat_multiply, yaw_quat
-from problems.latent import anchor_root, complete, fuse, infill, reconstruct
+from problems.common import prepare
+from problems.latent import anchor_root, at_model_rate, complete, fuse, infill, reconstruct
 
 from priorkit import cmu_clips, tiny_dataset
 from clips import DATA
@@ -151,6 +152,25 @@ def test_infill_keeps_seen_frames_closer_than_unseen(prior):
     assert r.motion.num_frames == clip.num_frames
     longer = complete(prior, clip, clip.num_frames // 2, clip.num_frames + 20)
     assert longer.motion.num_frames == clip.num_frames + 20
+
+
+def test_completion_carries_on_from_the_prefix(prior):
+    """The completed frames start where the prefix is going: the prefix is the input's, and
+    the step across the seam is no larger than the prefix's own steps, though the
+    generator reproduces the prefix only approximately."""
+    clip = bvh.load(cmu_clips()[-1])
+    seen = np.zeros(clip.num_frames, bool)
+    seen[: clip.num_frames // 2] = True
+    out = infill(prior, clip, seen).model_motion
+    real = prepare(clip, prior).model
+    k = int(at_model_rate(seen, clip.fps, prior.spec.fps, real.num_frames).sum())
+    assert np.allclose(out.rotations[:k], real.rotations[:k]) and np.allclose(out.root[:k], real.root[:k])
+
+    def largest_step(m, i: int) -> float:
+        p = m.positions()
+        return float(np.linalg.norm(p[i] - p[i - 1], axis=-1).max())
+
+    assert largest_step(out, k) <= 1.5 * max(largest_step(real, i) for i in range(1, k))
 
 
 def test_semantic_direction_moves_the_score(prior):
