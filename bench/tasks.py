@@ -376,16 +376,19 @@ def slerp_fill(m: Motion, a: int, b: int) -> Motion:
 
 def bench_inbetween(prior, clips: list[tuple[str, Motion]], starts: int) -> list[str]:
     """The LAFAN1 protocol against SLERP: ours with the autoregressive prior (``Inbetween``,
-    the default) and, where a latent prior for the skeleton ships, ``inbetween --method
-    latent`` (``LatentTask``: the masked encoder, L-BFGS, the MAP solve of the gap)."""
+    the default, seeded also by the masked encoder of the latent prior for the skeleton,
+    where one ships, as ``inbetween`` is) and, with such a prior, ours seeded by the
+    rollouts alone (``--latent-seed none``) and ``inbetween --method latent``
+    (``LatentTask``: the masked encoder, L-BFGS, the MAP solve of the gap)."""
     rows = []
     cidx = prior.spec.contact_indices()
     try:
         latent = load_latent_for(clips[0][1])
     except CheckpointError:
         latent = None
-    ours = {"ours": lambda seg, keep: Inbetween(seg, keep, prior).solve().model_motion}
+    ours = {"ours": lambda seg, keep: Inbetween(seg, keep, prior, latent=latent).solve().model_motion}
     if latent is not None:
+        ours["ours, --latent-seed none"] = lambda seg, keep: Inbetween(seg, keep, prior).solve().model_motion
         ours["ours, --method latent"] = lambda seg, keep: LatentTask(seg, latent, keep,
                                                                       gap_inversion_options()).solve().motion
     for gap in (5, 15, 30):

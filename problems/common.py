@@ -18,7 +18,7 @@ from motionopt.motion import Motion
 from motionopt.prior import ChannelClamp
 from motionopt.objective import (ContactTerm, FloorTerm, MAPObjective, PoseFidelityTerm, SkatingTerm, SmoothnessTerm,
                                  SupportTerm, Term)
-from motionopt.solver import MAPResult, Problem, SolverOptions, solve
+from motionopt.solver import MAPResult, Problem, SolverOptions, solve_from
 from priors.checkpoint import check_compatible
 from priors.train import ACCELERATION_KEY
 
@@ -299,11 +299,13 @@ def judged(result: TaskResult, prior, ground: float) -> TaskResult:
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,
-        prior_min_log_std: float | None = -2.5) -> tuple[MAPResult, Motion]:
+        prior_min_log_std: float | None = -2.5, other_starts: Sequence[torch.Tensor] = ()) -> tuple[MAPResult, Motion]:
     """Solve and decode to a model-skeleton Motion (continuing the input's root).
-    ``prior_min_log_std``: see ``MAPObjective`` (None: the prior as trained)."""
+    ``prior_min_log_std``: see ``MAPObjective`` (None: the prior as trained).
+    ``other_starts``: more starting features like ``x0``; the lowest objective's result
+    is kept (``solve_from``)."""
     objective = MAPObjective(prior, prep.model.skeleton, terms, prior_min_log_std=prior_min_log_std)
-    result = solve(objective, Problem(x0, free, prep.start), options)
+    result = solve_from(objective, [Problem(x, free, prep.start) for x in (x0, *other_starts)], options)
     # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
     return result, prep.codec.motion(result.x.double(), prep.start, like=prep.original)
 

@@ -16,39 +16,9 @@ from motionopt.solver import SolverOptions
 from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
+from .latent import masked_fills
+from .ranges import after_last_range, check_ranges, gaps
 from .rollout import chosen_rollout, lift_limit
-
-
-def parse_ranges(text: str) -> list[tuple[int, int]]:
-    """'0:30,60:90' -> [(0, 30), (60, 90)] (half-open, like Python slices)."""
-    out = []
-    for part in text.split(","):
-        part = part.strip()
-        if ":" not in part:
-            raise ValueError(f"keep range {part!r} must look like START:STOP, e.g. 0:30")
-        a, b = part.split(":", 1)
-        try:
-            out.append((int(a), int(b)))
-        except ValueError:
-            raise ValueError(f"keep range {part!r} must hold whole frame numbers") from None
-    return out
-
-
-def check_ranges(ranges: list[tuple[int, int]], n_frames: int) -> list[tuple[int, int]]:
-    """Sorted, validated ranges; errors name the offending range."""
-    if not ranges:
-        raise ValueError("give at least one frame range to keep")
-    ranges = sorted(ranges)
-    for a, b in ranges:
-        if not 0 <= a < b <= n_frames:
-            raise ValueError(f"keep range {a}:{b} is outside the clip's frames 0:{n_frames} or empty")
-    for (a0, b0), (a1, b1) in zip(ranges, ranges[1:]):
-        if a1 < b0:
-            raise ValueError(f"keep ranges {a0}:{b0} and {a1}:{b1} overlap")
-    if ranges[0][0] != 0:
-        raise ValueError(f"the first kept range starts at frame {ranges[0][0]}: keep frame 0, because the "
-                         "prior synthesises forward in time from what comes before")
-    return ranges
 
 
 @dataclass
@@ -64,8 +34,8 @@ class Inbetween:
     in prefix completion).
 
     Each gap is first filled by a rollout of the prior steered to the next kept frame
-    (``_fill``); with ``refine`` (the default) the MAP solver then solves the synthesised
-    frames under the prior, contact terms, feet gliding near the floor (``SkatingTerm``:
+    (``_fill``), and with ``latent`` by the masked encoder too; with ``refine`` (the
+    default) the MAP solver then solves the synthesised frames, from each fill, under the prior, contact terms, feet gliding near the floor (``SkatingTerm``:
     ``sigmas.skating``), joint accelerations (``sigmas.smoothness``) and fidelity to the
     kept frames where a gap joins them (``INBETWEEN_SKATING_SIGMA`` has the figures of the
     skating term). Before it, on held-out Bandai clips (LAFAN1
@@ -99,6 +69,13 @@ class Inbetween:
     #: Continuations of each second of a completion (no kept frame after it) of which the
     #: one whose feet meet the floor best is kept (``rollout.chosen_rollout``).
     candidates: int = 8
+    #: A latent prior of the motion's skeleton (``priors.latent.LatentPrior``) whose masked
+    #: encoder also seeds the solve: it starts from the steered rollouts and from each of
+    #: ``problems.latent.masked_fills`` in the gaps of at least ``LATENT_SEED_MIN_SECONDS``
+    #: and keeps the lowest objective (``solve_from``). Not with ``n_frames`` (prefix
+    #: completion), where the encoder's continuation is the worse one (README, latent
+    #: completion). None: the rollouts alone.
+    latent: object | None = None
 
     def __post_init__(self) -> None:
         self.keep = check_ranges(list(self.keep), self.motion.num_frames)
@@ -126,7 +103,7 @@ class Inbetween:
         src = np.minimum(np.arange(n), n_in - 1)
         rot, root = prep.model.rotations[src].copy(), prep.model.root[src].copy()
         gen = torch.Generator().manual_seed(self.options.seed)
-        for a, b in _gaps(kept):
+        for a, b in gaps(kept):
             self._fill(prep, rot, root, a, b if b < n else None, n, gen)
         model = prep.model.with_frames(rot, root, None) if n == n_in else Motion(
             prep.model.skeleton, rot, root, fps_m, source_unit=prep.model.source_unit)
@@ -137,7 +114,8 @@ class Inbetween:
         if self.refine:
             terms = join_terms(prep.model.root[src], prep.model.rotations[src], join, self.sigma_join_root,
                                self.sigma_join_angle) + standard_terms(prep, prior, self.sigmas, x)
-            result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None))
+            others = self._latent_starts(prep, keep, total_o, kept, x)
+            result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None), other_starts=others)
             x = result.x
         if self.clean_feet:
             model = plant_feet(model, prior, x, prep.planted_height, ~kept)
@@ -156,6 +134,33 @@ class Inbetween:
                     "temperature": self.options.temperature_for(prior), "gap_temperature": self.gap_temperature,
                     "refine": self.refine}
         return judged(TaskResult(out, model, result, metrics, settings, warnings), prior, prep.start.ground)
+
+    def _latent_starts(self, prep, keep: list[tuple[int, int]], total_o: int, kept: np.ndarray,
+                       x: torch.Tensor) -> list[torch.Tensor]:
+        """Starts of the solve besides the rollouts' ``x``: ``x`` with each gap of at least
+        ``LATENT_SEED_MIN_SECONDS`` between ``kept`` frames, and the step onto the kept frame
+        after it, taken from one of the masked encoder's fills (``latent``); none without
+        ``latent``, for prefix completion, or without such a gap."""
+        fps = self.prior.spec.fps
+        long_gaps = [(a, b) for a, b in gaps(kept) if b < len(kept) and (b - a) / fps >= LATENT_SEED_MIN_SECONDS]
+        if self.latent is None or self.n_frames is not None or not long_gaps:
+            return []
+        seen = np.zeros(total_o, bool)
+        for a, b in keep:
+            seen[a:b] = True
+        steps = self.prior.spec.slices()["yaw_delta"]   # root step and turn: the channels before it too
+        starts = []
+        for fill in masked_fills(self.latent, self.motion[:total_o], seen):
+            model = prepare(fill, self.prior).model
+            xf = prep.codec.features(model, prep.start.ground)
+            if len(xf) < len(x):
+                xf = torch.cat((xf, xf[-1:].expand(len(x) - len(xf), -1)))
+            seed = x.clone()
+            for a, b in long_gaps:
+                seed[a:b] = xf[a:b].to(x)
+                seed[b, :steps.stop] = xf[b, :steps.stop].to(x)   # the fill's own step onto the kept frame
+            starts.append(seed)
+        return starts
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line; the
@@ -234,20 +239,13 @@ class Inbetween:
         rot[a:a + len(q)], root[a:a + len(q)] = q, r
 
 
-#: What ``Inbetween`` may do with the frames after the last kept range (``after``).
-AFTER_LAST_RANGE = ("keep", "drop", "synthesise")
-
-
-def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> tuple[list[tuple[int, int]], int]:
-    """The ranges ``keep`` (checked and sorted, ``check_ranges``) of an ``n_frames`` input
-    and the output's length, with ``after`` (of ``AFTER_LAST_RANGE``) applied to the frames
-    after the last range: "keep" extends that range to the end, "drop" ends the output
-    there, "synthesise" leaves them to be synthesised."""
-    if after not in AFTER_LAST_RANGE:
-        raise ValueError(f"after must be one of {', '.join(AFTER_LAST_RANGE)}, got {after!r}")
-    if after == "keep":
-        return [*keep[:-1], (keep[-1][0], n_frames)], n_frames
-    return keep, (keep[-1][1] if after == "drop" else n_frames)
+#: Shortest gap (s) that ``Inbetween.latent``'s fills seed. Held-out LAFAN1-style gaps (the
+#: rollouts alone against the lowest objective from them and the fills, L2P m): 5 frames
+#: CMU 0.0438 against 0.0462 (20 cases), Bandai 0.0984 against 0.1024 (17 cases of 6
+#: clips). Longer gaps gain (bench/tasks.py section 3, all cases): 15 frames CMU 0.171
+#: either way, Bandai 0.227 -> 0.202; 30 frames CMU 0.417 -> 0.340, Bandai 0.415 -> 0.281.
+#: The two inversions take about 2 s a case.
+LATENT_SEED_MIN_SECONDS = 0.3
 
 
 #: Seconds over which a gap's first frames hand over from the kept frames' joint velocities to the prior.
@@ -267,12 +265,6 @@ def velocity_handoff(q: np.ndarray, q_before: np.ndarray, fps: float, seconds: f
                              R.axis_angle_to_quat(torch.from_numpy(k)[:, None, None] * step))
     weights = torch.from_numpy(np.broadcast_to(u[:, None], q.shape[:2]).copy())
     return R.quat_slerp(torch.from_numpy(q), steady, weights).numpy()
-
-
-def _gaps(kept: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) of each run of frames that are not kept."""
-    d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
 def complete(motion: Motion, prefix: int, n_frames: int, prior, **kwargs) -> Inbetween:

@@ -30,7 +30,7 @@ from priors.semantic import Direction, directions_of, fit_attribute_directions
 
 from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
                      standard_terms)
-from .inbetween import check_ranges
+from .ranges import check_ranges
 from .settle import Settle
 
 
@@ -264,6 +264,14 @@ def gap_inversion_options() -> InversionOptions:
     return InversionOptions(refine_iters=GAP_REFINE_ITERS)
 
 
+def masked_fills(prior: LatentPrior, motion: Motion, seen: np.ndarray) -> list[Motion]:
+    """The masked encoder's fills of the frames of ``motion`` where ``seen`` is false, on
+    the file's skeleton and rate: refined toward the seen frames (``gap_inversion_options``)
+    and from the encoder alone. In-betweening's MAP solve under the autoregressive prior
+    starts from each besides its own rollout (``problems.inbetween.Inbetween.latent``)."""
+    return [infill(prior, motion, seen, options).motion for options in (gap_inversion_options(), InversionOptions())]
+
+
 def hold_last_frame(motion: Motion, n_frames: int) -> Motion:
     """The motion lengthened to ``n_frames`` by repeating its last frame (for completion)."""
     if n_frames <= motion.num_frames:
@@ -285,7 +293,7 @@ class LatentTask:
     the autoregressive tasks (``options``, ``solve``, ``summary``): with ``keep`` None,
     ``reconstruct`` the whole of ``motion`` (denoising); else ``infill`` the frames outside
     ``keep``, half-open ranges of the input's frames with the first from frame 0 (as
-    ``problems.inbetween.check_ranges`` takes them): in-betweening, and prefix completion
+    ``problems.ranges.check_ranges`` takes them): in-betweening, and prefix completion
     (``LatentTask.completion``)."""
 
     motion: Motion

@@ -576,3 +576,27 @@ def test_vary_and_interpolate_settle_under_the_autoregressive_prior(trained, tmp
     argv = ["vary", b, "--count", "1", "--out-dir", str(tmp_path / "x"), "--prior", ckpt, "--settle-prior", ckpt]
     assert main(argv) == 1 and "needs an autoregressive prior" in capsys.readouterr().err
     assert main(argv + ["--no-settle"]) == 1 and "drop --settle-prior or --no-settle" in capsys.readouterr().err
+
+
+def test_inbetweening_starts_from_the_masked_encoder_too_and_keeps_the_lowest_objective(prior):
+    """With a latent prior, in-betweening's MAP solve starts from the rollouts and from the
+    masked encoder's two fills of a long gap, and keeps the lowest objective: never above
+    the rollouts' own solve, which is the first start. A gap shorter than
+    LATENT_SEED_MIN_SECONDS is seeded by the rollouts alone."""
+    from problems.inbetween import LATENT_SEED_MIN_SECONDS, Inbetween
+    from priorkit import tiny_prior
+
+    ar = tiny_prior()
+    clip = bvh.load(cmu_clips()[0])
+    long_gap = int(np.ceil(2 * LATENT_SEED_MIN_SECONDS * clip.fps))
+    keep = [(0, 30), (30 + long_gap, 30 + long_gap + 10)]
+    seg = clip[:keep[-1][1]]
+    alone = Inbetween(seg, keep, ar).solve()
+    seeded = Inbetween(seg, keep, ar, latent=prior).solve()
+    assert len(seeded.solver.starts_fun) == 3 and alone.solver.starts_fun == [alone.solver.fun]
+    assert seeded.solver.starts_fun[0] == pytest.approx(alone.solver.fun)
+    assert seeded.solver.fun == min(seeded.solver.starts_fun) <= alone.solver.fun
+    for a, b in keep:
+        assert np.array_equal(seeded.motion.rotations[a:b], seg.rotations[a:b])
+    short = [(0, 30), (33, 43)]
+    assert len(Inbetween(clip[:43], short, ar, latent=prior).solve().solver.starts_fun) == 1

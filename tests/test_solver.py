@@ -101,6 +101,23 @@ def test_options_are_checked():
         SolverOptions(window=10, overlap=10)
 
 
+def test_solve_from_keeps_the_lowest_objective_of_its_starts():
+    """``solve_from`` solves from each start as ``solve`` does and keeps the lowest final
+    objective; starts of different sequences are refused."""
+    prior = tiny_prior()
+    objective, problem, _ = denoise(prior, cmu_clips()[0], 40)
+    noisy = problem.x0 + 0.5 * torch.randn(problem.x0.shape, generator=torch.Generator().manual_seed(3))
+    starts = [Problem(noisy, problem.free, problem.start), problem]
+    opts = SolverOptions(window=20, overlap=5, max_iter=10, pso=None)
+    alone = [solve(objective, p, opts) for p in starts]
+    best = S.solve_from(objective, starts, opts)
+    assert best.starts_fun == pytest.approx([r.fun for r in alone])
+    assert best.fun == min(best.starts_fun) and alone[1].fun < alone[0].fun
+    assert torch.equal(best.x, alone[1].x)
+    with pytest.raises(ValueError, match="free frames"):
+        S.solve_from(objective, [problem, Problem(problem.x0, ~problem.free, problem.start)], opts)
+
+
 # ---- stitching and local optimisers ---------------------------------------------------
 def test_inbetween_keeps_fixed_frames_and_fills_the_gap():
     prior = tiny_prior()

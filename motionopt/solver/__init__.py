@@ -5,7 +5,7 @@ Rooms:
 
 - ``options``: ``SolverOptions``, ``PSOOptions``, ``InversionOptions``;
 - ``result``: ``Problem`` in, ``MAPResult`` out, ``StopSolve`` to stop a run;
-- ``driver``: ``solve``, the windowed MAP driver;
+- ``driver``: ``solve``, the windowed MAP driver, and ``solve_from`` several starts;
 - ``layout``: where windows go (``free_window_starts``) and what each is conditioned on;
 - ``window``: one window's variables and objective (``Window``);
 - ``optimizers``: the local optimisers, ``OPTIMIZERS`` (``SolverOptions.optimizer`` -> function);
@@ -15,7 +15,7 @@ Rooms:
 """
 from .optimizers import OPTIMIZERS
 from .diagnostics import energies_at, seam_report
-from .driver import solve
+from .driver import solve, solve_from
 from .inversion import InversionResult, blend, clip_window_starts, invert, refine, regulariser
 from .layout import free_window_starts
 from .options import InversionOptions, PSOOptions, SolverOptions
@@ -23,4 +23,4 @@ from .result import MAPResult, Problem, StopSolve
 
 __all__ = ["OPTIMIZERS", "InversionOptions", "InversionResult", "MAPResult", "PSOOptions", "Problem", "SolverOptions",
            "StopSolve", "blend", "clip_window_starts", "energies_at", "free_window_starts", "invert", "refine",
-           "regulariser", "seam_report", "solve"]
+           "regulariser", "seam_report", "solve", "solve_from"]

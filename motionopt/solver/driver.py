@@ -1,4 +1,4 @@
-"""The windowed MAP driver: ``solve(objective, problem, options)``.
+"""The windowed MAP driver: ``solve(objective, problem, options)``, and ``solve_from`` several starts.
 
 It optimises the normalised features of the free frames of a sequence, window by window
 (B frames, overlap b, laid out by ``layout``). Each window is conditioned on the solved
@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import replace
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -43,6 +45,25 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
             return _solve(objective, problem, options)
         finally:
             torch.set_flush_denormal(False)
+
+
+def solve_from(objective: MAPObjective, problems: Sequence[Problem], options: SolverOptions = SolverOptions()
+               ) -> MAPResult:
+    """``solve`` from each of ``problems`` (one sequence: the same free frames and root
+    start, different starting features) and the result of the lowest objective, with
+    every start's final objective in ``MAPResult.starts_fun``. The local optimiser stays
+    in the basin it starts in; seeds that differ in kind (an autoregressive rollout, a
+    masked encoder's fill) reach basins that one of them alone does not."""
+    if not problems:
+        raise ValueError("solve_from needs at least one start")
+    first = problems[0]
+    for p in problems[1:]:
+        if p.x0.shape != first.x0.shape or not np.array_equal(p.free, first.free) or p.start != first.start:
+            raise ValueError("the starts of solve_from must share the sequence's shape, free frames and root start")
+    results = [solve(objective, p, options) for p in problems]
+    best = min(results, key=lambda r: r.fun)
+    timings = {k: sum(r.timings[k] for r in results) for k in best.timings}  # the work of every start
+    return replace(best, timings=timings, starts_fun=[r.fun for r in results])
 
 
 def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MAPResult:

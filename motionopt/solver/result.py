@@ -44,6 +44,8 @@ class MAPResult:
                                     # scoring windows, within objective), total
     windows: list[dict]
     seam: dict[str, float] = field(default_factory=dict)
+    #: With several starts (``solve_from``): each start's final objective, in order; ``x`` is the lowest's.
+    starts_fun: list[float] = field(default_factory=list)
 
     def __getitem__(self, key: str):
         return getattr(self, key)

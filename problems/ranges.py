@@ -1,0 +1,60 @@
+"""Kept frame ranges of in-betweening and completion: parsed from the command line,
+checked against a clip, what becomes of the frames after the last one, and the gaps
+between them."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def parse_ranges(text: str) -> list[tuple[int, int]]:
+    """'0:30,60:90' -> [(0, 30), (60, 90)] (half-open, like Python slices)."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if ":" not in part:
+            raise ValueError(f"keep range {part!r} must look like START:STOP, e.g. 0:30")
+        a, b = part.split(":", 1)
+        try:
+            out.append((int(a), int(b)))
+        except ValueError:
+            raise ValueError(f"keep range {part!r} must hold whole frame numbers") from None
+    return out
+
+
+def check_ranges(ranges: list[tuple[int, int]], n_frames: int) -> list[tuple[int, int]]:
+    """Sorted, validated ranges; errors name the offending range."""
+    if not ranges:
+        raise ValueError("give at least one frame range to keep")
+    ranges = sorted(ranges)
+    for a, b in ranges:
+        if not 0 <= a < b <= n_frames:
+            raise ValueError(f"keep range {a}:{b} is outside the clip's frames 0:{n_frames} or empty")
+    for (a0, b0), (a1, b1) in zip(ranges, ranges[1:]):
+        if a1 < b0:
+            raise ValueError(f"keep ranges {a0}:{b0} and {a1}:{b1} overlap")
+    if ranges[0][0] != 0:
+        raise ValueError(f"the first kept range starts at frame {ranges[0][0]}: keep frame 0, because the "
+                         "prior synthesises forward in time from what comes before")
+    return ranges
+
+
+#: What ``Inbetween`` may do with the frames after the last kept range (``after``).
+AFTER_LAST_RANGE = ("keep", "drop", "synthesise")
+
+
+def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> tuple[list[tuple[int, int]], int]:
+    """The ranges ``keep`` (checked and sorted, ``check_ranges``) of an ``n_frames`` input
+    and the output's length, with ``after`` (of ``AFTER_LAST_RANGE``) applied to the frames
+    after the last range: "keep" extends that range to the end, "drop" ends the output
+    there, "synthesise" leaves them to be synthesised."""
+    if after not in AFTER_LAST_RANGE:
+        raise ValueError(f"after must be one of {', '.join(AFTER_LAST_RANGE)}, got {after!r}")
+    if after == "keep":
+        return [*keep[:-1], (keep[-1][0], n_frames)], n_frames
+    return keep, (keep[-1][1] if after == "drop" else n_frames)
+
+
+def gaps(kept: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of frames that are not kept."""
+    d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
