@@ -153,7 +153,8 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     t0 = time.perf_counter()
     progress("in-betweening: filling a gap between kept frames")
     gap = (24, 39)
-    res = Inbetween(moves, [(0, gap[0]), (gap[1], moves.num_frames)], cmu_prior).solve()
+    res = Inbetween(moves, [(0, gap[0]), (gap[1], moves.num_frames)], cmu_prior,
+                    latent=load_prior_cached(CHECKPOINT_DIR / "cmu-latent.pt")).solve()   # as `inbetween` seeds it
     bvh.save(res.motion, out / "inbetween.bvh", force=True)
     plot.plot_filmstrip({"input": moves[gap[0] - 6:gap[1] + 6], "in-between": res.motion[gap[0] - 6:gap[1] + 6]},
                         out / "inbetween.png", frames=6, first_frame=gap[0] - 6, force=True,
