@@ -516,7 +516,8 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
             if m.num_frames < fps:
                 continue
             out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent)
-            new = per_second(prior, prepare(out, prior).model, prepare(m[:fps], prior).start.ground)[1:1 + LONG_COMPLETION_S]
+            ground = prepare(m[:fps], prior).start.ground
+            new = per_second(prior, prepare(out, prior).model, ground)[1:1 + LONG_COMPLETION_S]
             out_range = out_of_range(new, known)
             inside_latent += len(new) - len({s for k in measures for s in out_range[k]})
             total_latent += len(new)

@@ -12,12 +12,13 @@ from motionopt.features import RootStart
 from motionopt.motion import Motion
 from motionopt.smoothing import smoothstep
 from motionopt.solver import SolverOptions
+from priors.latent import LatentPrior
 
 from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
 from .latent import masked_fills
-from .ranges import after_last_range, check_ranges, gaps
+from .ranges import after_last_range, check_ranges, gaps, kept_mask
 from .rollout import chosen_rollout, lift_limit
 
 
@@ -35,8 +36,8 @@ class Inbetween:
 
     Each gap is first filled by a rollout of the prior steered to the next kept frame
     (``_fill``), and with ``latent`` by the masked encoder too; with ``refine`` (the
-    default) the MAP solver then solves the synthesised frames, from each fill, under the prior, contact terms, feet gliding near the floor (``SkatingTerm``:
-    ``sigmas.skating``), joint accelerations (``sigmas.smoothness``) and fidelity to the
+    default) the MAP solver then solves the synthesised frames, from each fill, under the
+    prior, contact terms, feet gliding near the floor (``SkatingTerm``: ``sigmas.skating``), joint accelerations (``sigmas.smoothness``) and fidelity to the
     kept frames where a gap joins them (``INBETWEEN_SKATING_SIGMA`` has the figures of the
     skating term). Before it, on held-out Bandai clips (LAFAN1
     protocol, bench/tasks.py) that lowers L2P from 0.106 to 0.071 m for 5-frame gaps, from
@@ -75,7 +76,7 @@ class Inbetween:
     #: and keeps the lowest objective (``solve_from``). Not with ``n_frames`` (prefix
     #: completion), where the encoder's continuation is the worse one (README, latent
     #: completion). None: the rollouts alone.
-    latent: object | None = None
+    latent: LatentPrior | None = None
     #: Starts of the solve from rollouts of different noise (seeds ``options.seed``,
     #: ``options.seed + 1``, ...); the lowest objective is kept (``solve_from``). Prefix
     #: completion takes ``COMPLETION_ROLLOUT_STARTS``.
@@ -105,6 +106,7 @@ class Inbetween:
         n_in = min(len(prep.x), n)
         kept = model_frames_in(keep, fps_o, fps_m, n)
         kept[n_in:] = False
+        keep_o = kept_mask(keep, total_o)   # the output's frames copied from the input
         t0 = time.perf_counter()
         src = np.minimum(np.arange(n), n_in - 1)
         model, x = self._filled(prep, kept, n_in, self.options.seed)
@@ -115,19 +117,16 @@ class Inbetween:
             terms = join_terms(prep.model.root[src], prep.model.rotations[src], join, self.sigma_join_root,
                                self.sigma_join_angle) + standard_terms(prep, prior, self.sigmas, x)
             others = [self._filled(prep, kept, n_in, self.options.seed + k)[1] for k in range(1, self.rollout_starts)]
-            others += self._latent_starts(prep, keep, total_o, kept, x)
+            others += self._latent_starts(prep, keep_o, kept, x)
             result, model = run(prior, prep, x, ~kept, terms, replace(self.options, pso=None), other_starts=others)
             x = result.x
         if self.clean_feet:
             model = plant_feet(model, prior, x, prep.planted_height, ~kept)
         seconds = time.perf_counter() - t0
         synth = prep.to_file(model)
-        keep_o = np.zeros(synth.num_frames, bool)
-        for a, b in keep:
-            keep_o[a:b] = True
-        out = splice(synth[:total_o], self.motion, keep_o[:total_o])
+        out = splice(synth[:total_o], self.motion, keep_o)
         joins = np.nonzero(join)[0]
-        metrics = {"synthesised_frames": int((~keep_o[:total_o]).sum()),
+        metrics = {"synthesised_frames": int((~keep_o).sum()),
                    "join_root_error_cm": [float(np.linalg.norm(model.root[j - 1] - prep.model.root[j]) * 100)
                                           for j in joins],
                    "frames_per_second": int((~kept).sum()) / max(seconds, 1e-9)}
@@ -149,22 +148,19 @@ class Inbetween:
             prep.model.skeleton, rot, root, self.prior.spec.fps, source_unit=prep.model.source_unit)
         return model, prep.codec.features(model, prep.start.ground)
 
-    def _latent_starts(self, prep, keep: list[tuple[int, int]], total_o: int, kept: np.ndarray,
-                       x: torch.Tensor) -> list[torch.Tensor]:
+    def _latent_starts(self, prep, seen: np.ndarray, kept: np.ndarray, x: torch.Tensor) -> list[torch.Tensor]:
         """Starts of the solve besides the rollouts' ``x``: ``x`` with each gap of at least
-        ``LATENT_SEED_MIN_SECONDS`` between ``kept`` frames, and the step onto the kept frame
-        after it, taken from one of the masked encoder's fills (``latent``); none without
-        ``latent``, for prefix completion, or without such a gap."""
+        ``LATENT_SEED_MIN_SECONDS`` between ``kept`` frames (model rate; ``seen``: the
+        output's kept file frames), and the step onto the kept frame after it, taken from
+        one of the masked encoder's fills (``latent``); none without ``latent``, for prefix
+        completion, or without such a gap."""
         fps = self.prior.spec.fps
         long_gaps = [(a, b) for a, b in gaps(kept) if b < len(kept) and (b - a) / fps >= LATENT_SEED_MIN_SECONDS]
         if self.latent is None or self.n_frames is not None or not long_gaps:
             return []
-        seen = np.zeros(total_o, bool)
-        for a, b in keep:
-            seen[a:b] = True
         steps = self.prior.spec.slices()["yaw_delta"]   # root step and turn: the channels before it too
         starts = []
-        for fill in masked_fills(self.latent, self.motion[:total_o], seen):
+        for fill in masked_fills(self.latent, self.motion[:len(seen)], seen):
             model = prepare(fill, self.prior).model
             xf = prep.codec.features(model, prep.start.ground)
             if len(xf) < len(x):

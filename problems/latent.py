@@ -30,7 +30,7 @@ from priors.semantic import Direction, directions_of, fit_attribute_directions
 
 from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
                      standard_terms)
-from .ranges import check_ranges
+from .ranges import check_ranges, kept_mask
 from .settle import Settle
 
 
@@ -320,9 +320,7 @@ class LatentTask:
     def solve(self) -> LatentTaskResult:
         if self.keep is None:
             return reconstruct(self.prior, self.motion, self.options)
-        seen = np.zeros(self.motion.num_frames, bool)
-        for a, b in self.keep:
-            seen[a:b] = True
+        seen = kept_mask(self.keep, self.motion.num_frames)
         filled = infill(self.prior, self.motion, seen, self.options)
         return solve_unseen(self.prior, self.motion, seen, filled, self.map_options) if self.map_options else filled
 

@@ -54,6 +54,14 @@ def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> 
     return keep, (keep[-1][1] if after == "drop" else n_frames)
 
 
+def kept_mask(ranges: list[tuple[int, int]], n_frames: int) -> np.ndarray:
+    """(n_frames,) True on the frames inside the half-open ``ranges``."""
+    mask = np.zeros(n_frames, bool)
+    for a, b in ranges:
+        mask[a:b] = True
+    return mask
+
+
 def gaps(kept: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) of each run of frames that are not kept."""
     d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))

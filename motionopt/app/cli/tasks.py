@@ -381,7 +381,8 @@ TASKS: dict[str, TaskEntry] = {
         help="continue the first frames of a motion (prefix completion)",
         description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
         "--frames frames in all (both in INPUT.bvh's frame rate): three rollouts of the prior, each then solved with "
-        "the MAP solver, the lowest objective kept (--no-refine: the first rollout alone). --plot draws a filmstrip of output and input.",
+        "the MAP solver, the lowest objective kept (--no-refine: the first rollout alone). --plot draws a filmstrip "
+        "of output and input.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose first frames are kept"),
             arg("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep"),
