@@ -464,8 +464,8 @@ def bench_complete(prior, clips: list[tuple[str, Motion]]) -> list[str]:
         outs = [("zero velocity", extrapolate(real[:prefix], n, False)),
                 ("constant velocity", extrapolate(real[:prefix], n, True)), ("ours", r.model_motion)]
         if latent:
-            outs.append(("ours, --method latent", prepare(latent_completion(real[:prefix], prefix, prefix + n, latent),
-                                                          prior).model))
+            made = latent_completion(real[:prefix], prefix, prefix + n, latent, prior)
+            outs.append(("ours, --method latent", prepare(made, prior).model))
         for label, out in outs:
             res[label].append(np.linalg.norm(out.positions()[prefix:prefix + n] - p_real, axis=-1).mean() * 100)
         nll_ours.append(continuation_nll(prior, r.model_motion, prefix))
@@ -515,7 +515,7 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
         for name, m in clips:
             if m.num_frames < fps:
                 continue
-            out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent)
+            out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent, prior)
             ground = prepare(m[:fps], prior).start.ground
             new = per_second(prior, prepare(out, prior).model, ground)[1:1 + LONG_COMPLETION_S]
             out_range = out_of_range(new, known)
@@ -534,9 +534,10 @@ def latent_for(clips: list[tuple[str, Motion]]):
         return None
 
 
-def latent_completion(prefix_clip: Motion, prefix: int, n_frames: int, latent) -> Motion:
-    """``complete --method latent``'s output (``LatentTask.completion``)."""
-    return LatentTask.completion(prefix_clip, prefix, n_frames, latent).solve().motion
+def latent_completion(prefix_clip: Motion, prefix: int, n_frames: int, latent, settle_prior) -> Motion:
+    """``complete --method latent``'s output (``LatentTask.completion``), settled under
+    the autoregressive ``settle_prior`` as the command settles it by default."""
+    return LatentTask.completion(prefix_clip, prefix, n_frames, latent, settle_prior=settle_prior).solve().motion
 
 
 # ---- 5. spatial edits -----------------------------------------------------------------

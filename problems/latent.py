@@ -30,7 +30,7 @@ from priors.semantic import Direction, directions_of, fit_attribute_directions
 
 from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
                      standard_terms)
-from .ranges import check_ranges, kept_mask
+from .ranges import at_model_rate, check_ranges, kept_mask
 from .settle import Settle
 
 
@@ -196,13 +196,6 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     return result_of(prior, fused, pa.start, a, inv, {"seam_frame_model": t})
 
 
-def at_model_rate(seen: np.ndarray, fps: float, model_fps: float, n: int) -> np.ndarray:
-    """``seen`` (one bool per frame at ``fps``) at the ``n`` frames of the prior's rate: each
-    model frame takes the nearest file frame's."""
-    idx = np.minimum(np.round(np.arange(n) * fps / model_fps).astype(int), len(seen) - 1)
-    return seen[idx]
-
-
 def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: InversionOptions = InversionOptions()
            ) -> LatentTaskResult:
     """Fill the frames of ``motion`` where ``seen`` (one bool per file frame) is false with
@@ -302,6 +295,9 @@ class LatentTask:
     options: InversionOptions = field(default_factory=InversionOptions)
     #: The MAP solve of the filled frames (``solve_unseen``); None: the inversion's output.
     map_options: SolverOptions | None = field(default_factory=lambda: SolverOptions(pso=None))
+    #: An autoregressive prior that settles the synthesised frames after that solve
+    #: (``settled``, the kept frames held); None: as the latent prior made them.
+    settle_prior: object | None = None
 
     def __post_init__(self) -> None:
         if self.keep is not None:
@@ -309,20 +305,24 @@ class LatentTask:
 
     @classmethod
     def completion(cls, motion: Motion, prefix: int, n_frames: int, prior: LatentPrior,
-                   options: InversionOptions = InversionOptions()) -> LatentTask:
-        """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``."""
+                   options: InversionOptions = InversionOptions(), settle_prior=None) -> LatentTask:
+        """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``
+        (and settle them under ``settle_prior``, see ``settle_prior``)."""
         if not 0 < prefix <= motion.num_frames:
             raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
         if n_frames <= prefix:
             raise ValueError(f"--frames {n_frames} must be larger than --prefix {prefix}")
-        return cls(hold_last_frame(motion[:prefix], n_frames), prior, [(0, prefix)], options)
+        return cls(hold_last_frame(motion[:prefix], n_frames), prior, [(0, prefix)], options,
+                   settle_prior=settle_prior)
 
     def solve(self) -> LatentTaskResult:
         if self.keep is None:
             return reconstruct(self.prior, self.motion, self.options)
         seen = kept_mask(self.keep, self.motion.num_frames)
-        filled = infill(self.prior, self.motion, seen, self.options)
-        return solve_unseen(self.prior, self.motion, seen, filled, self.map_options) if self.map_options else filled
+        result = infill(self.prior, self.motion, seen, self.options)
+        if self.map_options:
+            result = solve_unseen(self.prior, self.motion, seen, result, self.map_options)
+        return result if self.settle_prior is None else settled(result, self.settle_prior, held=seen)
 
     def summary(self, result: LatentTaskResult) -> list[str]:
         """How the inversion of ``result`` (of ``solve``) went, in a sentence for the command line."""
@@ -333,7 +333,10 @@ class LatentTask:
         solved = [f"then the MAP solve of the filled frames under the latent prior: objective "
                   f"{m['map_objective_start']:.4g} -> {m['map_objective']:.4g} in {m['map_iterations']} iterations"
                   ] if "map_objective" in m else []
-        return [f"latent codes of {len(inv.starts)} windows {how}{fit}", *solved]
+        settled_ = [f"then settled under the autoregressive prior, kept frames held: the synthesised frames moved "
+                    f"{m['settle_change_cm']:.1f} cm on average, prior NLL per frame {m['settle_nll_start']:.1f} -> "
+                    f"{m['settle_nll']:.1f}"] if "settle_change_cm" in m else []
+        return [f"latent codes of {len(inv.starts)} windows {how}{fit}", *solved, *settled_]
 
 
 def directions(prior: LatentPrior) -> dict[str, Direction]:
@@ -370,10 +373,11 @@ def played_at(prior: LatentPrior, x: Tensor, times: np.ndarray) -> Tensor:
     return prior.normalizer.normalize(out).float()
 
 
-def settled(result: LatentTaskResult, prior) -> LatentTaskResult:
+def settled(result: LatentTaskResult, prior, held: np.ndarray | None = None) -> LatentTaskResult:
     """``result`` settled under the autoregressive ``prior`` (``problems.settle``): a MAP
-    solve within centimetres of it that makes it likely; its figures join the metrics."""
-    s = Settle(result.motion, prior).solve()
+    solve within centimetres of it that makes it likely, the frames where ``held`` is true
+    kept as they are; its figures join the metrics."""
+    s = Settle(result.motion, prior, held=held).solve()
     return replace(result, motion=s.motion, model_motion=s.model_motion, metrics={**result.metrics, **s.metrics})
 
 

@@ -66,3 +66,10 @@ def gaps(kept: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) of each run of frames that are not kept."""
     d = np.diff(np.concatenate(([0], (~kept).astype(np.int8), [0])))
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def at_model_rate(seen: np.ndarray, fps: float, model_fps: float, n: int) -> np.ndarray:
+    """``seen`` (one bool per frame at ``fps``) at the ``n`` frames of the prior's rate: each
+    model frame takes the nearest file frame's."""
+    idx = np.minimum(np.round(np.arange(n) * fps / model_fps).astype(int), len(seen) - 1)
+    return seen[idx]

@@ -19,8 +19,10 @@ from motionopt.motion import Motion
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import FLOOR_SIGMA, SKATING_SIGMA, SUPPORT_SIGMA, TaskResult, TermSigmas, judged, prepare, standard_terms
+from .common import (FLOOR_SIGMA, SKATING_SIGMA, SUPPORT_SIGMA, TaskResult, TermSigmas, judged, prepare, splice,
+                     standard_terms)
 from .denoise import denoise_options
+from .ranges import at_model_rate
 
 #: Fidelity sigmas of the settle solve: root position (m) and joint rotations (rad).
 SETTLE_SIGMA_ROOT = 0.05
@@ -54,8 +56,10 @@ class Settle:
     """MAP solve of ``motion`` under ``prior`` (autoregressive) as trained: no floor on its
     predicted spread, which follows every iterate (``MAPObjective.hold_prior_spread``
     off), held to the motion's own root and joint rotations (``sigma_root`` m,
-    ``sigma_angle`` rad) with the standard contact, acceleration and skating terms, every
-    frame free and starting from the motion itself."""
+    ``sigma_angle`` rad) with the standard contact, acceleration and skating terms,
+    starting from the motion itself. Every frame is free but those where ``held`` (one bool
+    per frame of ``motion``) is true, which the output keeps exactly: a completion's
+    prefix, which the settled frames then meet without a seam."""
 
     motion: Motion
     prior: object
@@ -63,8 +67,14 @@ class Settle:
     sigma_angle: float = SETTLE_SIGMA_ANGLE
     sigmas: TermSigmas = field(default_factory=settle_sigmas)
     options: SolverOptions = field(default_factory=denoise_options)
+    held: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.held is not None:
+            self.held = np.asarray(self.held, bool)
+            if self.held.shape != (self.motion.num_frames,):
+                raise ValueError(f"held must have one entry per frame ({self.motion.num_frames}), "
+                                 f"got {self.held.shape}")
         for name in ("sigma_root", "sigma_angle"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
@@ -79,12 +89,17 @@ class Settle:
         terms = [fidelity] + standard_terms(prep, self.prior, self.sigmas, prep.x)
         objective = MAPObjective(self.prior, prep.model.skeleton, terms, prior_min_log_std=None,
                                  prior_min_std_raw=None, hold_prior_spread=False)
-        result = solve(objective, Problem(prep.x.clone(), np.ones(n, bool), prep.start), self.options)
+        held = np.zeros(n, bool) if self.held is None else at_model_rate(self.held, self.motion.fps,
+                                                                           self.prior.spec.fps, n)
+        result = solve(objective, Problem(prep.x.clone(), ~held, prep.start), self.options)
         model = prep.codec.motion(result.x.double(), prep.start, like=prep.original)
         moved = np.linalg.norm(model.positions() - prep.model.positions(), axis=-1)
-        metrics = {"settle_change_cm": float(moved.mean() * 100),
+        metrics = {"settle_change_cm": float(moved[~held].mean() * 100),
                    "settle_nll_start": nll_per_frame(self.prior, prep.x),
                    "settle_nll": nll_per_frame(self.prior, result.x),
                    "settle_seconds": time.perf_counter() - t0}
         settings = {"sigma_root": self.sigma_root, "sigma_angle": self.sigma_angle}
-        return judged(TaskResult(prep.to_file(model), model, result, metrics, settings), self.prior, prep.start.ground)
+        out = prep.to_file(model)
+        if self.held is not None:
+            out = splice(out, self.motion, self.held)
+        return judged(TaskResult(out, model, result, metrics, settings), self.prior, prep.start.ground)

@@ -23,7 +23,8 @@ from priors.semantic import AttributeScorer, directions_of, edit_codes
 from priors.train_latent import LatentTrainConfig, log_path, state_path, train_latent
 from motionopt.rotations import quat_multiply, yaw_quat
 from problems.common import prepare
-from problems.latent import anchor_root, at_model_rate, complete, fuse, infill, reconstruct
+from problems.latent import anchor_root, complete, fuse, infill, reconstruct
+from problems.ranges import at_model_rate
 
 from priorkit import cmu_clips, tiny_dataset
 from clips import DATA
@@ -600,3 +601,27 @@ def test_inbetweening_starts_from_the_masked_encoder_too_and_keeps_the_lowest_ob
         assert np.array_equal(seeded.motion.rotations[a:b], seg.rotations[a:b])
     short = [(0, 30), (33, 43)]
     assert len(Inbetween(clip[:43], short, ar, latent=prior).solve().solver.starts_fun) == 1
+
+
+def test_latent_completion_settles_the_new_frames_and_holds_the_prefix(trained, tmp_path, capsys):
+    """complete --method latent settles the frames after the prefix under the shipped
+    autoregressive prior by default, its report saying by how much, with the prefix exactly
+    the input's; --no-settle writes them as the latent prior made them; --settle-prior
+    without --method latent is refused."""
+    clip = str(cmu_clips()[0])
+    runs = {}
+    for flag in ([], ["--no-settle"]):
+        out, report = tmp_path / f"c{len(flag)}.bvh", tmp_path / f"c{len(flag)}.json"
+        argv = ["complete", clip, "--prefix", "40", "--frames", "100", "--method", "latent", "--prior",
+                str(trained[0]), "--out", str(out), "--report", str(report), "-q", *flag]
+        assert main(argv) == 0, capsys.readouterr().err
+        runs[bool(flag)] = (bvh.load(out), json.loads(report.read_text())["metrics"])
+    (settled, m_settled), (made, m_made) = runs[False], runs[True]
+    source = bvh.load(clip)
+    assert np.array_equal(settled.rotations[:40], source.rotations[:40])
+    assert np.array_equal(settled.root[:40], source.root[:40])
+    assert "settle_change_cm" not in m_made and 0 < m_settled["settle_change_cm"] < 10
+    assert np.abs(settled.positions()[40:] - made.positions()[40:]).max() > 1e-3
+    argv = ["complete", clip, "--prefix", "40", "--frames", "100", "--settle-prior", "x", "--out",
+            str(tmp_path / "x.bvh")]
+    assert main(argv) == 1 and "add --method latent" in capsys.readouterr().err

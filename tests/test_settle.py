@@ -2,6 +2,7 @@
 it makes a roughened walk likely again while staying within centimetres of it."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from motionopt.noise import position_noise
@@ -35,3 +36,21 @@ def test_settle_rejects_bad_sigmas(prior):
     walk = shared_excerpt("bandai2/dataset-2_walk_active_002.bvh", 0, 30)
     with pytest.raises(ValueError, match="sigma_root must be positive"):
         Settle(walk, prior, sigma_root=0.0)
+
+
+def test_settle_holds_the_held_frames_exactly_and_moves_the_others(prior):
+    """Frames marked ``held`` (a completion's prefix) come out exactly as they went in,
+    the solve moves the rest, and the change it reports is over the moved frames alone."""
+    walk = shared_excerpt("bandai2/dataset-2_walk_active_002.bvh", 0, 90)
+    rough, _ = position_noise(walk, 0.02, seed=2)
+    held = np.arange(rough.num_frames) < 30
+    result = Settle(rough, prior, held=held).solve()
+    out = result.motion
+    assert np.array_equal(out.rotations[held], rough.rotations[held])
+    assert np.array_equal(out.root[held], rough.root[held])
+    moved = np.linalg.norm(out.positions() - rough.positions(), axis=-1).mean(-1)
+    assert moved[~held].mean() > 0.003
+    assert result.metrics["settle_change_cm"] > 100 * moved[held].mean()   # held frames count no change
+    assert result.metrics["settle_nll"] < result.metrics["settle_nll_start"]
+    with pytest.raises(ValueError, match="held must have one entry per frame"):
+        Settle(rough, prior, held=held[:-1])

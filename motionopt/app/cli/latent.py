@@ -14,7 +14,8 @@ from priors.train_latent import PHASES
 from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
 from .tasks import (add_io_options, add_prior_options, check_paths, command_line, filmstrip, json_text, load_input,
-                    load_prior, report_output, use_threads, view_output, write_json)
+                    load_prior, report_output, settle_args, settle_prior, use_threads, view_output,
+                    write_json)
 
 
 def register(sub) -> None:
@@ -150,24 +151,10 @@ def _task_options(p: argparse.ArgumentParser, out: str, out_dir: bool = False, o
 
 
 def _settle_options(p: argparse.ArgumentParser, what: str) -> None:
-    """--settle-prior and --no-settle: the autoregressive prior that settles ``what``."""
+    """--settle-prior and --no-settle in a group of their own."""
     g = p.add_argument_group("settling under the autoregressive prior")
-    g.add_argument("--settle-prior", default=None, metavar="CKPT",
-                   help=f"autoregressive prior that settles {what} (a MAP solve within a few centimetres that makes "
-                        "it natural; default: the shipped one for the skeleton)")
-    g.add_argument("--no-settle", action="store_true", help="write the generated motions as they are")
-
-
-def _settle_prior(args: argparse.Namespace, motion):
-    """The autoregressive prior that settles the outputs, or None with --no-settle."""
-    from priors.checkpoint import load_prior_of_kind
-
-    if args.no_settle:
-        if args.settle_prior:
-            raise UserError("--no-settle writes the generated motions as they are; drop --settle-prior or --no-settle")
-        return None
-    return load_prior_of_kind(motion.skeleton, args.settle_prior, "CCNetPrior", f"{args.command} --settle-prior",
-                              "or pass --no-settle")[0]
+    for flags, options in settle_args(what):
+        g.add_argument(*flags, **options)
 
 
 def _options(args: argparse.Namespace):
@@ -291,7 +278,7 @@ def cmd_vary(args: argparse.Namespace) -> int:
     stem = Path(args.input).stem + "_var"
     run = _start(args, ("input",), [f"{stem}_{i:02d}" for i in range(args.count)])
     return _finish(run, vary(run.prior, run.motions[0], args.count, args.sigma, args.seed, _options(args),
-                             _settle_prior(args, run.motions[0])), "variation")
+                             settle_prior(args, run.motions[0])), "variation")
 
 
 def cmd_interpolate(args: argparse.Namespace) -> int:
@@ -300,5 +287,5 @@ def cmd_interpolate(args: argparse.Namespace) -> int:
     stem = f"{Path(args.a).stem}_to_{Path(args.b).stem}"
     run = _start(args, ("a", "b"), [f"{stem}_{i:02d}" for i in range(args.steps)])
     a, b = run.motions
-    return _finish(run, interpolate(run.prior, a, b, args.steps, _options(args), _settle_prior(args, a)),
+    return _finish(run, interpolate(run.prior, a, b, args.steps, _options(args), settle_prior(args, a)),
                    "interpolated")

@@ -305,6 +305,35 @@ def _latent_seed(args: argparse.Namespace, motion: Motion):
     return prior
 
 
+def settle_args(what: str) -> tuple[Arg, Arg]:
+    """--settle-prior and --no-settle: the autoregressive prior that settles ``what``."""
+    return (arg("--settle-prior", default=None, metavar="CKPT",
+                help=f"autoregressive prior that settles {what} (a MAP solve within a few centimetres that makes it "
+                "natural; default: the shipped one for the skeleton)"),
+            arg("--no-settle", action="store_true", help="write the generated motions as they are"))
+
+
+def settle_prior(args: argparse.Namespace, motion: Motion):
+    """The autoregressive prior that settles the outputs, or None with --no-settle."""
+    from priors.checkpoint import load_prior_of_kind
+
+    if args.no_settle:
+        if args.settle_prior:
+            raise UserError("--no-settle writes the generated motions as they are; drop --settle-prior or --no-settle")
+        return None
+    return load_prior_of_kind(motion.skeleton, args.settle_prior, "CCNetPrior", f"{args.command} --settle-prior",
+                              "or pass --no-settle")[0]
+
+
+def _autoregressive_completion(args: argparse.Namespace, motion: Motion, prior):
+    """``complete`` under the autoregressive prior, which --settle-prior and --no-settle do not concern."""
+    if args.settle_prior or args.no_settle:
+        raise UserError("--settle-prior and --no-settle settle --method latent's completion; drop them or add "
+                        "--method latent")
+    return _problems().inbetween.complete(motion, args.prefix, args.frames, prior, refine=args.refine is not False,
+                                          clean_feet=args.clean_feet is not False)
+
+
 #: The task commands by name, in the order ``motionopt --help`` lists them.
 TASKS: dict[str, TaskEntry] = {
     "path-follow": TaskEntry(
@@ -381,18 +410,18 @@ TASKS: dict[str, TaskEntry] = {
         help="continue the first frames of a motion (prefix completion)",
         description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
         "--frames frames in all (both in INPUT.bvh's frame rate): three rollouts of the prior, each then solved with "
-        "the MAP solver, the lowest objective kept (--no-refine: the first rollout alone). --plot draws a filmstrip "
-        "of output and input.",
+        "the MAP solver, the lowest objective kept (--no-refine: the first rollout alone). With --method latent: "
+        "the masked encoder's continuation, solved under the latent prior, then settled under the autoregressive "
+        "prior with the prefix held (--no-settle: not settled). --plot draws a filmstrip of output and input.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose first frames are kept"),
             arg("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep"),
             arg("--frames", required=True, type=_positive(int), metavar="N",
                 help="frames of the output, prefix included"),
-            CLEAN_FEET),
-        build=lambda a, _, motion, prior: _problems().inbetween.complete(
-            motion, a.prefix, a.frames, prior, refine=a.refine is not False, clean_feet=a.clean_feet is not False),
-        latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(motion, a.prefix, a.frames,
-                                                                                    prior)),
+            CLEAN_FEET, *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
+        build=lambda a, _, motion, prior: _autoregressive_completion(a, motion, prior),
+        latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(
+            motion, a.prefix, a.frames, prior, settle_prior=settle_prior(a, motion))),
     "edit": TaskEntry(
         help="move chosen joints to targets at chosen frames (spatial edit)",
         description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or [I, J], "
