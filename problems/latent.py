@@ -306,8 +306,8 @@ class LatentTask:
     @classmethod
     def completion(cls, motion: Motion, prefix: int, n_frames: int, prior: LatentPrior,
                    options: InversionOptions = InversionOptions(), settle_prior=None) -> LatentTask:
-        """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``
-        (and settle them under ``settle_prior``, see ``settle_prior``)."""
+        """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``,
+        settled under ``settle_prior`` when one is given."""
         if not 0 < prefix <= motion.num_frames:
             raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
         if n_frames <= prefix:
