@@ -17,7 +17,7 @@ from priors.latent import LatentPrior
 from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
-from .latent import masked_fills
+from .latent import long_gaps, masked_fills
 from .ranges import after_last_range, check_ranges, gaps, kept_mask
 from .rollout import chosen_rollout, lift_limit
 
@@ -72,7 +72,7 @@ class Inbetween:
     candidates: int = 8
     #: A latent prior of the motion's skeleton (``priors.latent.LatentPrior``) whose masked
     #: encoder also seeds the solve: it starts from the steered rollouts and from each of
-    #: ``problems.latent.masked_fills`` in the gaps of at least ``LATENT_SEED_MIN_SECONDS``
+    #: ``problems.latent.masked_fills`` in the gaps of ``problems.latent.long_gaps``
     #: and keeps the lowest objective (``solve_from``). Not with ``n_frames`` (prefix
     #: completion), where the encoder's continuation is the worse one (README, latent
     #: completion). None: the rollouts alone.
@@ -149,14 +149,13 @@ class Inbetween:
         return model, prep.codec.features(model, prep.start.ground)
 
     def _latent_starts(self, prep, seen: np.ndarray, kept: np.ndarray, x: torch.Tensor) -> list[torch.Tensor]:
-        """Starts of the solve besides the rollouts' ``x``: ``x`` with each gap of at least
-        ``LATENT_SEED_MIN_SECONDS`` between ``kept`` frames (model rate; ``seen``: the
+        """Starts of the solve besides the rollouts' ``x``: ``x`` with each gap of
+        ``problems.latent.long_gaps`` between ``kept`` frames (model rate; ``seen``: the
         output's kept file frames), and the step onto the kept frame after it, taken from
         one of the masked encoder's fills (``latent``); none without ``latent``, for prefix
         completion, or without such a gap."""
-        fps = self.prior.spec.fps
-        long_gaps = [(a, b) for a, b in gaps(kept) if b < len(kept) and (b - a) / fps >= LATENT_SEED_MIN_SECONDS]
-        if self.latent is None or self.n_frames is not None or not long_gaps:
+        seeded = long_gaps(kept, self.prior.spec.fps)
+        if self.latent is None or self.n_frames is not None or not seeded:
             return []
         steps = self.prior.spec.slices()["yaw_delta"]   # root step and turn: the channels before it too
         starts = []
@@ -166,7 +165,7 @@ class Inbetween:
             if len(xf) < len(x):
                 xf = torch.cat((xf, xf[-1:].expand(len(x) - len(xf), -1)))
             seed = x.clone()
-            for a, b in long_gaps:
+            for a, b in seeded:
                 seed[a:b] = xf[a:b].to(x)
                 seed[b, :steps.stop] = xf[b, :steps.stop].to(x)   # the fill's own step onto the kept frame
             starts.append(seed)
@@ -247,15 +246,6 @@ class Inbetween:
             r = r + w[:, None] * (prep.model.root[b] - r[-1])
             q, r = q[:-1], r[:-1]
         rot[a:a + len(q)], root[a:a + len(q)] = q, r
-
-
-#: Shortest gap (s) that ``Inbetween.latent``'s fills seed. Held-out LAFAN1-style gaps (the
-#: rollouts alone against the lowest objective from them and the fills, L2P m): 5 frames
-#: CMU 0.0438 against 0.0462 (20 cases), Bandai 0.0984 against 0.1024 (17 cases of 6
-#: clips). Longer gaps gain (bench/tasks.py section 3, all cases): 15 frames CMU 0.171
-#: either way, Bandai 0.227 -> 0.202; 30 frames CMU 0.417 -> 0.340, Bandai 0.415 -> 0.281.
-#: The two inversions take about 2 s a case.
-LATENT_SEED_MIN_SECONDS = 0.3
 
 
 #: Seconds over which a gap's first frames hand over from the kept frames' joint velocities to the prior.

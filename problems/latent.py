@@ -9,6 +9,7 @@ the result back on the user's skeleton, frame rate and unit.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -30,7 +31,7 @@ from priors.semantic import Direction, directions_of, fit_attribute_directions
 
 from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
                      standard_terms)
-from .ranges import at_model_rate, check_ranges, kept_mask
+from .ranges import at_model_rate, check_ranges, gaps, kept_mask
 from .settle import Settle
 
 
@@ -215,14 +216,16 @@ def infill(prior: LatentPrior, motion: Motion, seen: np.ndarray, options: Invers
 
 
 def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: LatentTaskResult,
-                 options: SolverOptions) -> LatentTaskResult:
+                 options: SolverOptions, others: Sequence[LatentTaskResult] = ()) -> LatentTaskResult:
     """The unseen frames of ``filled`` (``infill``'s output for ``motion``) solved by the MAP
     solver with the latent prior as its prior term (``priors.latent_density``) and the
     autoregressive tasks' terms: joint accelerations, contacts, feet gliding near the floor
     and, where a gap meets a seen frame, fidelity to it (in-betweening, as
     ``problems.inbetween.Inbetween``); or, after the last seen frame, the feet gliding and
     supporting the body (prefix completion, as ``problems.inbetween.complete``). Seen
-    frames are the input's exactly.
+    frames are the input's exactly. Each of ``others`` (other fills of the same frames)
+    is a further start in the gaps of ``long_gaps``, ``filled`` elsewhere; the lowest
+    objective is kept (``solve_from``).
 
     On held-out clips (1.5 s gaps, the first 8 s of 4 CMU clips, error on the gap) the
     masked encoder refined by 200 L-BFGS iterations left 125 mm, this solve 116 (the
@@ -233,15 +236,39 @@ def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: L
     kept = at_model_rate(seen, motion.fps, prior.spec.fps, n)
     x0 = prep.codec.features(filled.model_motion, prep.start.ground)[:n].clone()
     x0[torch.from_numpy(kept)] = prep.x[torch.from_numpy(kept)]
+    starts = []
+    for other in others:
+        xo = prep.codec.features(other.model_motion, prep.start.ground)[:n]
+        start = x0.clone()
+        for a, b in long_gaps(kept, prior.spec.fps):
+            start[a:b] = xo[a:b].to(x0)
+        starts.append(start)
     join = np.zeros(n, bool)
     join[1:] = kept[1:] & ~kept[:-1]
     sigmas = gap_sigmas() if kept[-1] else completion_sigmas()
     terms = join_terms(prep.model.root, prep.model.rotations, join) + standard_terms(prep, density, sigmas, x0)
-    result, model = run(density, prep, x0, ~kept, terms, options)
+    result, model = run(density, prep, x0, ~kept, terms, options, other_starts=starts)
     out = splice(prep.to_file(model)[:motion.num_frames], motion, seen)
     metrics = {**filled.metrics, "map_objective_start": result.fun_start, "map_objective": result.fun,
-               "map_iterations": result.nit}
+               "map_iterations": result.nit, "map_starts_objective": result.starts_fun}
     return LatentTaskResult(out, model, filled.inversion, metrics)
+
+
+#: Shortest gap (s) that the masked encoder's fills seed: in ``Inbetween.latent``'s solve
+#: under the autoregressive prior, and as ``LatentTask``'s second start (the fill from the
+#: encoder alone). Held-out LAFAN1-style gaps, Inbetween (the rollouts alone against the
+#: lowest objective from them and the fills, L2P m): 5 frames CMU 0.0438 against 0.0462
+#: (20 cases), Bandai 0.0984 against 0.1024 (17 cases of 6 clips); longer gaps gain
+#: (bench/tasks.py section 3, all cases): 15 frames CMU 0.171 either way, Bandai 0.227 ->
+#: 0.202; 30 frames CMU 0.417 -> 0.340, Bandai 0.415 -> 0.281. The two inversions take
+#: about 2 s a case. LatentTask's figures are in its docstring.
+LATENT_SEED_MIN_SECONDS = 0.3
+
+
+def long_gaps(kept: np.ndarray, fps: float) -> list[tuple[int, int]]:
+    """The gaps between ``kept`` frames (at ``fps``) with a kept frame after them that last
+    at least ``LATENT_SEED_MIN_SECONDS``: those the masked encoder's fills seed."""
+    return [(a, b) for a, b in gaps(kept) if b < len(kept) and (b - a) / fps >= LATENT_SEED_MIN_SECONDS]
 
 
 #: L-BFGS iterations of the inversion before in-betweening's MAP solve (``gap_inversion_options``).
@@ -287,7 +314,14 @@ class LatentTask:
     ``reconstruct`` the whole of ``motion`` (denoising); else ``infill`` the frames outside
     ``keep``, half-open ranges of the input's frames with the first from frame 0 (as
     ``problems.ranges.check_ranges`` takes them): in-betweening, and prefix completion
-    (``LatentTask.completion``)."""
+    (``LatentTask.completion``).
+
+    In-betweening's MAP solve of gaps of ``long_gaps`` starts from the fill of ``options``
+    and from the encoder's alone, and keeps the lowest objective: on held-out LAFAN1-style
+    gaps (L2P m, from the refined fill alone -> from both) CMU 15 frames 0.233 -> 0.205, 30
+    frames 0.384 -> 0.355 (20 cases each), Bandai 15 frames 0.208 -> 0.209, 30 frames 0.272
+    -> 0.261 (32 and 30 cases); on 5-frame gaps the encoder's fill made it worse (CMU 0.064
+    -> 0.072), which ``LATENT_SEED_MIN_SECONDS`` keeps out."""
 
     motion: Motion
     prior: LatentPrior
@@ -321,7 +355,10 @@ class LatentTask:
         seen = kept_mask(self.keep, self.motion.num_frames)
         result = infill(self.prior, self.motion, seen, self.options)
         if self.map_options:
-            result = solve_unseen(self.prior, self.motion, seen, result, self.map_options)
+            encoder_alone = InversionOptions()
+            others = [infill(self.prior, self.motion, seen, encoder_alone)] if (
+                self.options != encoder_alone and long_gaps(seen, self.motion.fps)) else []
+            result = solve_unseen(self.prior, self.motion, seen, result, self.map_options, others)
         return result if self.settle_prior is None else settled(result, self.settle_prior, held=seen)
 
     def summary(self, result: LatentTaskResult) -> list[str]:

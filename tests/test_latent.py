@@ -584,7 +584,8 @@ def test_inbetweening_starts_from_the_masked_encoder_too_and_keeps_the_lowest_ob
     masked encoder's two fills of a long gap, and keeps the lowest objective: never above
     the rollouts' own solve, which is the first start. A gap shorter than
     LATENT_SEED_MIN_SECONDS is seeded by the rollouts alone."""
-    from problems.inbetween import LATENT_SEED_MIN_SECONDS, Inbetween
+    from problems.inbetween import Inbetween
+    from problems.latent import LATENT_SEED_MIN_SECONDS
     from priorkit import tiny_prior
 
     ar = tiny_prior()
@@ -625,3 +626,24 @@ def test_latent_completion_settles_the_new_frames_and_holds_the_prefix(trained, 
     argv = ["complete", clip, "--prefix", "40", "--frames", "100", "--settle-prior", "x", "--out",
             str(tmp_path / "x.bvh")]
     assert main(argv) == 1 and "add --method latent" in capsys.readouterr().err
+
+
+def test_latent_inbetweening_also_starts_a_long_gap_from_the_encoders_fill(prior):
+    """A refined inversion's gap of at least LATENT_SEED_MIN_SECONDS is also solved from
+    the encoder's own fill and the lowest objective kept; a shorter gap, or an inversion
+    that is the encoder's alone, has one start. Kept frames stay the input's."""
+    from problems.latent import LATENT_SEED_MIN_SECONDS, LatentTask
+
+    clip = bvh.load(cmu_clips()[0])
+    long_gap = int(np.ceil(2 * LATENT_SEED_MIN_SECONDS * clip.fps))
+    keep = [(0, 30), (30 + long_gap, 30 + long_gap + 10)]
+    seg = clip[:keep[-1][1]]
+    refined = InversionOptions(refine_iters=5)
+    result = LatentTask(seg, prior, keep, refined).solve()
+    starts = result.metrics["map_starts_objective"]
+    assert len(starts) == 2 and result.metrics["map_objective"] == min(starts)
+    for a, b in keep:
+        assert np.array_equal(result.motion.rotations[a:b], seg.rotations[a:b])
+    assert len(LatentTask(seg, prior, keep).solve().metrics["map_starts_objective"]) == 1
+    short = [(0, 30), (33, 43)]
+    assert len(LatentTask(clip[:43], prior, short, refined).solve().metrics["map_starts_objective"]) == 1
