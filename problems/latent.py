@@ -349,6 +349,13 @@ class LatentTask:
         return cls(hold_last_frame(motion[:prefix], n_frames), prior, [(0, prefix)], options,
                    settle_prior=settle_prior)
 
+    def output_ranges(self) -> tuple[list[tuple[int, int]], int]:
+        """The ranges the output copies from the input and its length (input frames), as
+        ``problems.inbetween.Inbetween.output_ranges`` gives them: the whole motion when
+        it is reconstructed."""
+        n = self.motion.num_frames
+        return (self.keep if self.keep is not None else [(0, n)]), n
+
     def solve(self) -> LatentTaskResult:
         if self.keep is None:
             return reconstruct(self.prior, self.motion, self.options)
@@ -367,9 +374,12 @@ class LatentTask:
         how = f"refined in {inv.nit} iterations" if inv.nit else "from the encoder alone"
         fit = "" if inv.objective is None else f"; fidelity objective {inv.objective_start:.4g} -> {inv.objective:.4g}"
         m = result.metrics
+        starts = m.get("map_starts_objective", [])
+        among = (f", the lowest of {len(starts)} starts (the refined fill and the encoder's own in gaps of "
+                 f"{LATENT_SEED_MIN_SECONDS:g} s or more)") if len(starts) > 1 else ""
         solved = [f"then the MAP solve of the filled frames under the latent prior: objective "
                   f"{m['map_objective_start']:.4g} -> {m['map_objective']:.4g} in {m['map_iterations']} iterations"
-                  ] if "map_objective" in m else []
+                  f"{among}"] if "map_objective" in m else []
         settled_ = [f"then settled under the autoregressive prior, kept frames held: the synthesised frames moved "
                     f"{m['settle_change_cm']:.1f} cm on average, prior NLL per frame {m['settle_nll_start']:.1f} -> "
                     f"{m['settle_nll']:.1f}"] if "settle_change_cm" in m else []

@@ -58,9 +58,10 @@ def test_each_task_runs_as_a_command_and_in_a_batch_alike(files, tmp_path, capsy
     options += ["--method", method] if method == "latent" else []
     report, page = tmp_path / "one.json", tmp_path / "one.html"
     rc = main([task, str(files["walk"]), *options, "--out", str(tmp_path / "one.bvh"), "--report", str(report),
-               "--view", str(page)])
+               "--view", str(page), "--plot"])
     out, err = capsys.readouterr()
     assert rc == 0, err
+    assert (tmp_path / "one.png").stat().st_size > 0   # the task's picture
     html = page.read_text()  # the page of every task: input and output, the task's targets, its measures
     assert '"name":"input"' in html and '"name":"output"' in html and "foot skating" in html
     assert ("prior NLL per frame" in html) == (method == "ar" or task == "denoise")  # latent denoising is a MAP solve
