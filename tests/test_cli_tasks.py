@@ -284,6 +284,11 @@ def test_latent_method_denoises_and_completes(capsys, clips, tmp_path):
     assert rc == 0, err
     assert_round_trips(out, clips["walk"], 45)
     assert "latent codes of" in stdout and "refined in" in stdout
+    assert "MAP solve" in stdout
+    rc, stdout, err = run(capsys, "complete", clips["walk"], "--method", "latent", "--prefix", 10, "--frames", 45,
+                          "--out", out, "--force", "--no-refine", "--no-settle")
+    assert rc == 0, err
+    assert "latent codes of" in stdout and "MAP solve" not in stdout   # --no-refine: the inversion alone
 
 
 def test_force_overwrites_and_without_it_nothing_changes(capsys, clips, tmp_path):

@@ -270,10 +270,18 @@ def _latent_density(prior):
 def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], motion: Motion, prior):
     """In-betweening with the latent prior, --after applied as the autoregressive task applies it."""
     if args.latent_seed is not None:
-        raise UserError("--latent-seed seeds the autoregressive solve: drop it or --method latent")
+        raise UserError("--latent-seed seeds the autoregressive solve: drop --latent-seed, or drop --method latent")
     problems = _problems()
     ranges, length = problems.ranges.after_last_range(keep, motion.num_frames, args.after)
-    return problems.latent.LatentTask(motion[:length], prior, ranges, problems.latent.gap_inversion_options())
+    return _latent_refined(args, problems.latent.LatentTask(motion[:length], prior, ranges,
+                                                            problems.latent.gap_inversion_options()))
+
+
+def _latent_refined(args: argparse.Namespace, task):
+    """``task`` (a ``LatentTask``) without its MAP solve of the filled frames under --no-refine."""
+    if args.refine is False:
+        task.map_options = None
+    return task
 
 
 CLEAN_FEET = arg("--clean-feet", action=argparse.BooleanOptionalAction, default=None,
@@ -420,8 +428,8 @@ TASKS: dict[str, TaskEntry] = {
                 help="frames of the output, prefix included"),
             CLEAN_FEET, *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
         build=lambda a, _, motion, prior: _autoregressive_completion(a, motion, prior),
-        latent=lambda a, _, motion, prior: _problems().latent.LatentTask.completion(
-            motion, a.prefix, a.frames, prior, settle_prior=settle_prior(a, motion))),
+        latent=lambda a, _, motion, prior: _latent_refined(a, _problems().latent.LatentTask.completion(
+            motion, a.prefix, a.frames, prior, settle_prior=settle_prior(a, motion)))),
     "edit": TaskEntry(
         help="move chosen joints to targets at chosen frames (spatial edit)",
         description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or [I, J], "
@@ -465,7 +473,7 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
                    "task's result: on by default for denoise, path-follow, inbetween and complete (--no-refine: the "
-                   "filter or the rollout alone), off by default for edit, where with the shipped priors it does "
+                   "filter or the rollout alone; with --method latent, the inversion alone), off by default for edit, where with the shipped priors it does "
                    "not improve the benchmark figures (bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
