@@ -289,6 +289,10 @@ def test_latent_method_denoises_and_completes(capsys, clips, tmp_path):
                           "--out", out, "--force", "--no-refine", "--no-settle")
     assert rc == 0, err
     assert "latent codes of" in stdout and "MAP solve" not in stdout   # --no-refine: the inversion alone
+    rc, stdout, err = run(capsys, "inbetween", clips["walk"], "--method", "latent", "--keep", "0:5,20:30",
+                          "--iterations", 0, "--out", out, "--force", "--no-refine")
+    assert rc == 0, err
+    assert "from the encoder alone" in stdout   # --iterations 0: no refinement of the codes
 
 
 def test_force_overwrites_and_without_it_nothing_changes(capsys, clips, tmp_path):
@@ -340,6 +344,8 @@ INVALID = [
     ("swarm off and on", ("inbetween", "martial", "--keep", "0:30", "--no-pso", "--pso-particles", "4"), "--no-pso"),
     ("optimiser with latent", ("complete", "walk", "--prefix", "10", "--frames", "40", "--method", "latent",
                                "--optimizer", "nlopt"), "--method ar"),
+    ("no iterations for the MAP solver", ("complete", "walk", "--prefix", "10", "--frames", "40", "--iterations", "0"),
+     "--no-refine"),
     ("output not BVH", ("denoise", "walk", "--out", "{tmp}/out.txt"), ".bvh"),
     ("output folder missing", ("denoise", "walk", "--out", "{tmp}/nowhere/out.bvh"), "does not exist"),
     ("existing report", ("denoise", "walk", "--report", "{nose}"), "exists"),

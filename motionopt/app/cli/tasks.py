@@ -64,6 +64,17 @@ def arg(*flags: str, **options: Any) -> Arg:
     return flags, options
 
 
+def _non_negative_int(text: str) -> int:
+    """A whole number of 0 or more (--iterations: 0 is the latent inversion's encoder alone)."""
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
+    return value
+
+
+_non_negative_int.__name__ = "int"  # argparse names the type in its messages
+
+
 def _positive(kind: type) -> Callable[[str], float | int]:
     def parse(text: str):
         value = kind(text)
@@ -475,7 +486,7 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
                    "task's result: on by default for denoise, path-follow, inbetween and complete (--no-refine: the "
                    "filter or the rollout alone; with --method latent, the inversion alone), off by default for edit, where with the shipped priors it does "
                    "not improve the benchmark figures (bench/results/tasks.txt)")
-    s.add_argument("--iterations", type=_positive(int), default=None, metavar="N",
+    s.add_argument("--iterations", type=_non_negative_int, default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
                        "encoder alone; inbetween 200)" if method else ""))
@@ -690,6 +701,9 @@ def solver_options(args: argparse.Namespace, base: SolverOptions,
     elif args.pso_particles or args.pso_iterations:
         pso = replace(pso or PSOOptions(), **{k: v for k, v in (("particles", args.pso_particles),
                                                                  ("iterations", args.pso_iterations)) if v})
+    if args.iterations == 0:
+        raise UserError("--iterations 0 means the latent inversion's encoder alone (--method latent); the MAP "
+                        "solver needs 1 or more, or pass --no-refine")
     return replace(base, optimizer=args.optimizer or base.optimizer, max_iter=args.iterations or base.max_iter,
                    pso=pso, seed=args.seed, callback=progress)
 
@@ -701,7 +715,7 @@ def latent_options(args: argparse.Namespace, base: InversionOptions) -> Inversio
             raise UserError(f"{flag} applies to --method ar only")
     if args.no_pso and args.pso_iterations:
         raise UserError("--no-pso turns the particle swarm off; drop --pso-iterations or --no-pso")
-    return replace(base, refine_iters=args.iterations or base.refine_iters,
+    return replace(base, refine_iters=base.refine_iters if args.iterations is None else args.iterations,
                    pso_iters=0 if args.no_pso else args.pso_iterations or base.pso_iters, seed=args.seed)
 
 
