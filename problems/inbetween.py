@@ -17,7 +17,7 @@ from priors.latent import LatentPrior
 from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskResult, TermSigmas, clamped_rollout,
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
-from .latent import long_gaps, masked_fills
+from .latent import long_gaps, masked_fills, with_long_gaps_from
 from .ranges import after_last_range, check_ranges, gaps, kept_mask
 from .rollout import chosen_rollout, lift_limit
 
@@ -154,21 +154,16 @@ class Inbetween:
         output's kept file frames), and the step onto the kept frame after it, taken from
         one of the masked encoder's fills (``latent``); none without ``latent``, for prefix
         completion, or without such a gap."""
-        seeded = long_gaps(kept, self.prior.spec.fps)
-        if self.latent is None or self.n_frames is not None or not seeded:
+        fps = self.prior.spec.fps
+        if self.latent is None or self.n_frames is not None or not long_gaps(kept, fps):
             return []
-        steps = self.prior.spec.slices()["yaw_delta"]   # root step and turn: the channels before it too
+        step = slice(0, self.prior.spec.slices()["yaw_delta"].stop)   # root step and turn: the channels up to it
         starts = []
         for fill in masked_fills(self.latent, self.motion[:len(seen)], seen):
-            model = prepare(fill, self.prior).model
-            xf = prep.codec.features(model, prep.start.ground)
+            xf = prep.codec.features(prepare(fill, self.prior).model, prep.start.ground)
             if len(xf) < len(x):
                 xf = torch.cat((xf, xf[-1:].expand(len(x) - len(xf), -1)))
-            seed = x.clone()
-            for a, b in seeded:
-                seed[a:b] = xf[a:b].to(x)
-                seed[b, :steps.stop] = xf[b, :steps.stop].to(x)   # the fill's own step onto the kept frame
-            starts.append(seed)
+            starts.append(with_long_gaps_from(x, xf, kept, fps, step))
         return starts
 
     def summary(self, result: TaskResult) -> list[str]:

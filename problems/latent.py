@@ -236,13 +236,8 @@ def solve_unseen(prior: LatentPrior, motion: Motion, seen: np.ndarray, filled: L
     kept = at_model_rate(seen, motion.fps, prior.spec.fps, n)
     x0 = prep.codec.features(filled.model_motion, prep.start.ground)[:n].clone()
     x0[torch.from_numpy(kept)] = prep.x[torch.from_numpy(kept)]
-    starts = []
-    for other in others:
-        xo = prep.codec.features(other.model_motion, prep.start.ground)[:n]
-        start = x0.clone()
-        for a, b in long_gaps(kept, prior.spec.fps):
-            start[a:b] = xo[a:b].to(x0)
-        starts.append(start)
+    starts = [with_long_gaps_from(x0, prep.codec.features(other.model_motion, prep.start.ground)[:n], kept,
+                                  prior.spec.fps) for other in others]
     join = np.zeros(n, bool)
     join[1:] = kept[1:] & ~kept[:-1]
     sigmas = gap_sigmas() if kept[-1] else completion_sigmas()
@@ -269,6 +264,18 @@ def long_gaps(kept: np.ndarray, fps: float) -> list[tuple[int, int]]:
     """The gaps between ``kept`` frames (at ``fps``) with a kept frame after them that last
     at least ``LATENT_SEED_MIN_SECONDS``: those the masked encoder's fills seed."""
     return [(a, b) for a, b in gaps(kept) if b < len(kept) and (b - a) / fps >= LATENT_SEED_MIN_SECONDS]
+
+
+def with_long_gaps_from(x: Tensor, other: Tensor, kept: np.ndarray, fps: float, step: slice | None = None) -> Tensor:
+    """A start of a MAP solve: features ``x (T, D)`` with each of ``long_gaps(kept, fps)``
+    taken from ``other`` (T, D) and, with ``step``, those channels of the kept frame after
+    the gap too (the other's own step onto it)."""
+    out = x.clone()
+    for a, b in long_gaps(kept, fps):
+        out[a:b] = other[a:b].to(x)
+        if step is not None:
+            out[b, step] = other[b, step].to(x)
+    return out
 
 
 #: L-BFGS iterations of the inversion before in-betweening's MAP solve (``gap_inversion_options``).

@@ -484,8 +484,9 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     s.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="run the MAP solver (prior, task and contact terms; windows of 34 frames, L-BFGS) on the "
                    "task's result: on by default for denoise, path-follow, inbetween and complete (--no-refine: the "
-                   "filter or the rollout alone; with --method latent, the inversion alone), off by default for edit, where with the shipped priors it does "
-                   "not improve the benchmark figures (bench/results/tasks.txt)")
+                   "filter or the rollout alone; with --method latent, the inversion alone), off by default for "
+                   "edit, where with the shipped priors it does not improve the benchmark figures "
+                   "(bench/results/tasks.txt)")
     s.add_argument("--iterations", type=_non_negative_int, default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
