@@ -468,15 +468,25 @@ def plot_joint_trajectories(tracks: Mapping[str, Track], joint: str | int, out: 
     return _save(fig, out)
 
 
+#: Most stick figures a filmstrip row holds: beyond it they are too small to read, and a
+#: picture of 400 took minutes to draw.
+MAX_FILMSTRIP_FRAMES = 30
+
+
 def _pick_times(figs: Sequence[StickFigure], frames: int | Sequence[int]) -> np.ndarray:
     """Times (s) of the filmstrip's columns: ``frames`` evenly spread over the shortest
     motion, or the given frame numbers of the longest motion (the first of several as long)."""
+    frames = frames if isinstance(frames, int) else list(frames)
+    count = frames if isinstance(frames, int) else len(frames)
+    if count > MAX_FILMSTRIP_FRAMES:
+        raise ValueError(f"a filmstrip draws at most {MAX_FILMSTRIP_FRAMES} figures per row, got {count}: "
+                         "write an interactive page with 'motionopt view' to see every frame")
     if isinstance(frames, int):
         if frames < 1:
             raise ValueError(f"a filmstrip needs at least one frame, got {frames}")
         dur = min((f.num_frames - 1) / f.fps for f in figs)
         return np.linspace(0.0, dur, frames)
-    idx = np.asarray(list(frames), dtype=int)
+    idx = np.asarray(frames, dtype=int)
     if len(idx) == 0:
         raise ValueError("a filmstrip needs at least one frame")
     longest = max(figs, key=lambda f: (f.num_frames - 1) / f.fps)

@@ -6,26 +6,28 @@ from __future__ import annotations
 import numpy as np
 
 
-def parse_ranges(text: str) -> list[tuple[int, int]]:
-    """'0:30,60:90' -> [(0, 30), (60, 90)] (half-open, like Python slices)."""
+def parse_ranges(text: str) -> list[tuple[int, int | None]]:
+    """'0:30,60:90' -> [(0, 30), (60, 90)] (half-open, like Python slices); as in a slice,
+    a missing start is frame 0 and a missing stop (None) the clip's end ('60:')."""
     out = []
     for part in text.split(","):
         part = part.strip()
         if ":" not in part:
-            raise ValueError(f"keep range {part!r} must look like START:STOP, e.g. 0:30")
-        a, b = part.split(":", 1)
+            raise ValueError(f"keep range {part!r} must look like START:STOP, e.g. 0:30 (or 60: to the end)")
+        a, b = (side.strip() for side in part.split(":", 1))
         try:
-            out.append((int(a), int(b)))
+            out.append((int(a) if a else 0, int(b) if b else None))
         except ValueError:
             raise ValueError(f"keep range {part!r} must hold whole frame numbers") from None
     return out
 
 
-def check_ranges(ranges: list[tuple[int, int]], n_frames: int) -> list[tuple[int, int]]:
-    """Sorted, validated ranges; errors name the offending range."""
+def check_ranges(ranges: list[tuple[int, int | None]], n_frames: int) -> list[tuple[int, int]]:
+    """Sorted, validated ranges, a stop of None made the clip's end; errors name the
+    offending range."""
     if not ranges:
         raise ValueError("give at least one frame range to keep")
-    ranges = sorted(ranges)
+    ranges = sorted((a, n_frames if b is None else b) for a, b in ranges)
     for a, b in ranges:
         if not 0 <= a < b <= n_frames:
             raise ValueError(f"keep range {a}:{b} is outside the clip's frames 0:{n_frames} or empty")

@@ -20,6 +20,7 @@ from motionopt.motion import Motion
 from motionopt.plot import body_root
 from priors.checkpoint import CHECKPOINT_DIR
 from problems.path_follow import read_path_csv
+from problems.ranges import check_ranges, parse_ranges
 from clips import DATA, CMU_120, CMU_60, BANDAI_30
 
 
@@ -378,6 +379,16 @@ def test_invalid_input_fails_in_one_line_and_writes_nothing(capsys, clips, tmp_p
 
 # ---- the path reader and the help -------------------------------------------------------------------
 
+def test_keep_ranges_read_like_python_slices():
+    assert parse_ranges("0:30, 60:90") == [(0, 30), (60, 90)]
+    assert check_ranges(parse_ranges(":30,60:"), 120) == [(0, 30), (60, 120)]
+    assert check_ranges(parse_ranges("60:,0:30"), 120) == [(0, 30), (60, 120)]
+    with pytest.raises(ValueError, match="'60:x' must hold whole frame numbers"):
+        parse_ranges("0:30,60:x")
+    with pytest.raises(ValueError, match="30:20 is outside"):
+        check_ranges(parse_ranges("0:10,30:20"), 120)
+
+
 def test_read_path_csv_columns_times_and_line_numbers(tmp_path):
     p = tmp_path / "p.csv"
     p.write_text("\ufeffz, x ,T\n\n1,0,0.5\n2,0.5,1.0\n")
@@ -395,6 +406,13 @@ def test_read_path_csv_columns_times_and_line_numbers(tmp_path):
 
 #: The options the README says every task takes.
 COMMON = ("--prior", "--seed", "--report", "--plot", "--view", "--force", "--fps", "--unit", "--quiet", "--verbose")
+
+
+def test_vary_refuses_a_negative_sigma_before_reading_anything(capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        main(["vary", str(tmp_path / "missing.bvh"), "--sigma", "-1", "--out-dir", str(tmp_path / "v")])
+    assert e.value.code == 2 and "--sigma: must be 0 or more, got -1" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("command", ("fuse", "latent-edit", "vary", "interpolate"))

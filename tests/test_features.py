@@ -11,7 +11,7 @@ import torch
 
 from motionopt import bvh
 from motionopt.features import (FeatureSpec, contact_heights, contact_labels, decode, decode_positions, default_spec, encode,
-                                estimate_ground, planted_root_step, to_model_motion)
+                                estimate_ground, floored_root_height, planted_root_step, to_model_motion)
 from clips import DATA, CMU_120, BANDAI_30
 
 MARTIAL = DATA / CMU_120
@@ -137,6 +137,54 @@ def test_contact_thresholds_are_parameters_that_change_labels():
     strict = replace(spec, contact_height=0.005, contact_speed=0.1)
     x_strict, _ = encode(model, strict)
     assert x_strict[:, strict.slices()["contacts"]].sum() < default.sum()
+
+
+@pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
+def test_planted_root_step_is_carried_by_the_lowest_planted_joint(path):
+    """Two planted joints needing different steps: the step is the lower one's, each
+    weighed by its height over its rest; with an infinite sharpness, their mean."""
+    _, spec, model, x, _ = encoded(path)
+    s = spec.slices()
+    x = x.clone()
+    x[:, s["contacts"]] = 0.0
+    x[:, s["contacts"].start:s["contacts"].start + 2] = 1.0  # the first two contact joints planted
+    t = len(x) // 2
+    heights = contact_heights(x[t - 1:t + 1], spec, model.skeleton).amax(0)  # (C,) the higher of both frames
+    rest = heights.clone()[None]
+    rest[0, 1] -= 0.05  # the second joint 5 cm above its rest, the first on it
+    rest[0, 2:] = -10.0  # the others far above theirs: not planted
+    prev, new = x[t - 1:t], x[t:t + 1]
+    alone = x.clone()
+    alone[:, s["contacts"].start + 1] = 0.0
+    first_only = planted_root_step(alone[t - 1:t], alone[t:t + 1], spec, model.skeleton)[0, s["root_delta"]]
+    second = x.clone()
+    second[:, s["contacts"].start] = 0.0
+    second_only = planted_root_step(second[t - 1:t], second[t:t + 1], spec, model.skeleton)[0, s["root_delta"]]
+    assert torch.linalg.norm(first_only - second_only) > 1e-3  # the two joints need different steps
+    both = planted_root_step(prev, new, spec, model.skeleton, rest)[0, s["root_delta"]]
+    w = torch.exp(torch.tensor(-5.0, dtype=x.dtype))  # 5 cm over a sharpness of 1 cm
+    assert torch.allclose(both, (first_only + w * second_only) / (1 + w), atol=1e-6)
+    mean = planted_root_step(prev, new, spec, model.skeleton, rest, sharpness=float("inf"))[0, s["root_delta"]]
+    assert torch.allclose(mean, (first_only + second_only) / 2, atol=1e-6)
+
+
+@pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
+def test_floored_root_height_lifts_a_sunken_body_onto_the_floor_and_leaves_a_standing_one(path):
+    _, spec, model, x, _ = encoded(path)
+    s = spec.slices()
+    frames = x[::40]
+    rest = contact_heights(frames, spec, model.skeleton).amin(-1, keepdim=True).expand(-1, len(spec.contact_joints))
+    assert torch.equal(floored_root_height(frames, spec, model.skeleton, rest), frames)
+    sunk = frames.clone()
+    sunk[:, s["root_height"]] -= 0.1
+    lifted = floored_root_height(sunk, spec, model.skeleton, rest)
+    assert torch.allclose(lifted, frames, atol=1e-6)
+    # without a rest height the ground itself is the floor
+    below = contact_heights(sunk, spec, model.skeleton).amin(-1)
+    ground = floored_root_height(sunk, spec, model.skeleton)
+    assert torch.allclose(ground[:, s["root_height"]], sunk[:, s["root_height"]] - below[:, None].clamp_max(0), atol=1e-6)
+    assert torch.allclose(contact_heights(ground, spec, model.skeleton).amin(-1).clamp_max(0), torch.zeros(len(frames),
+                          dtype=x.dtype), atol=1e-6)
 
 
 @pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])

@@ -105,6 +105,8 @@ def test_filmstrip_of_given_frames_with_a_tilted_camera(martial, tmp_path):
         P.plot_filmstrip({"martial": martial}, tmp_path / "bad.png", frames=[0, 240])
     with pytest.raises(ValueError, match="at least one frame"):
         P.plot_filmstrip({"martial": martial}, tmp_path / "bad.png", frames=0)
+    with pytest.raises(ValueError, match="at most 30 figures per row, got 400"):
+        P.plot_filmstrip({"martial": martial}, tmp_path / "bad.png", frames=400)
     assert not (tmp_path / "bad.png").exists()
 
 

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from motionopt.features import planted_root_step
+from motionopt.features import floored_root_height, planted_root_step
 from priors.checkpoint import CheckpointError, check_compatible, load_prior, read_checkpoint, save_prior
 from motionopt.prior import ChannelClamp, MotionPrior
 from priors.score import checked_features
@@ -134,13 +134,14 @@ def test_sampling_is_seeded_and_follows_the_predicted_mean(prior, x):
     assert torch.equal(a, b) and not torch.equal(a, c)
     # temperature 0: the first new frame is the predicted mean, made a valid rotation set,
     # and with planting (the default) its root step then keeps planted contact joints still
+    # and no contact joint goes below the ground
     first = prior.sample(ctx, 1, temperature=0.0, plant=False)[0]
     mean, _, logits = prior.gaussian(x[10:11], context=ctx)
     expected = prior.project(torch.cat((mean[0], (logits[0] > 0).float())))
     assert torch.allclose(first, expected, atol=1e-5)
     norm = prior.normalizer
-    planted = norm.normalize(planted_root_step(norm.denormalize(ctx[-1:]), norm.denormalize(expected[None]),
-                                               prior.spec, prior.skeleton))[0]
+    step = planted_root_step(norm.denormalize(ctx[-1:]), norm.denormalize(expected[None]), prior.spec, prior.skeleton)
+    planted = norm.normalize(floored_root_height(step, prior.spec, prior.skeleton))[0]
     assert torch.allclose(prior.sample(ctx, 1, temperature=0.0)[0], planted, atol=1e-5)
     # batched contexts roll out independently
     two = prior.sample(torch.stack((ctx, ctx)), 5, temperature=0.0)

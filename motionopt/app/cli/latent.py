@@ -14,7 +14,7 @@ from priors.train_latent import PHASES
 from . import UserError
 from .prior import add_training_data_args, add_training_run_args, training_dataset
 from .tasks import (add_io_options, add_prior_options, check_paths, command_line, filmstrip, json_text, load_input,
-                    load_prior, report_output, settle_args, settle_prior, use_threads, view_output,
+                    load_prior, non_negative, report_output, settle_args, settle_prior, use_threads, view_output,
                     write_json)
 
 
@@ -78,7 +78,8 @@ def register(sub) -> None:
                        "DIR/INPUT_var_00.bvh and on. --plot draws each against the input.")
     p.add_argument("input", metavar="INPUT.bvh", help="BVH file")
     p.add_argument("--count", type=int, default=8)
-    p.add_argument("--sigma", type=float, default=0.3, help="offset size in standard deviations of the codes (0.1-0.8)")
+    p.add_argument("--sigma", type=non_negative(float), default=0.3,
+                   help="offset size in standard deviations of the codes (0.1-0.8)")
     _task_options(p, "folder for the output BVH files (made if missing)", out_dir=True)
     _settle_options(p, "each variation")
     p.set_defaults(func=cmd_vary)

@@ -64,25 +64,26 @@ def arg(*flags: str, **options: Any) -> Arg:
     return flags, options
 
 
-def _non_negative_int(text: str) -> int:
-    """A whole number of 0 or more (--iterations: 0 is the latent inversion's encoder alone)."""
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
-    return value
-
-
-_non_negative_int.__name__ = "int"  # argparse names the type in its messages
-
-
-def _positive(kind: type) -> Callable[[str], float | int]:
+def _number(kind: type, ok: Callable[[float], bool], what: str) -> Callable[[str], float | int]:
+    """An argparse type: a number of ``kind`` for which ``ok`` holds, refused as not ``what``."""
     def parse(text: str):
         value = kind(text)
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text}")
         return value
     parse.__name__ = kind.__name__  # argparse names the type in its messages
     return parse
+
+
+def positive(kind: type) -> Callable[[str], float | int]:
+    """A number of ``kind`` above 0."""
+    return _number(kind, lambda v: v > 0, "positive")
+
+
+def non_negative(kind: type) -> Callable[[str], float | int]:
+    """A number of ``kind`` of 0 or more (--iterations 0: the latent inversion's encoder
+    alone; --sigma 0: a variation that is the input)."""
+    return _number(kind, lambda v: v >= 0, "0 or more")
 
 
 def _problems() -> ModuleType:
@@ -369,9 +370,9 @@ TASKS: dict[str, TaskEntry] = {
             arg("--path", required=True, metavar="PATH.csv", help="ground points to follow (x,z[,t])"),
             arg("--path-unit", choices=("m", "cm", "mm", "in"), default="m",
                 help="length unit of PATH.csv's x and z (default m)"),
-            arg("--seconds", type=_positive(float), default=None, metavar="S",
+            arg("--seconds", type=positive(float), default=None, metavar="S",
                 help="seconds of new motion (default: enough to reach the path's end)"),
-            arg("--speed", type=_positive(float), default=None, metavar="M_PER_S",
+            arg("--speed", type=positive(float), default=None, metavar="M_PER_S",
                 help="walking speed along the path (default: the seed's recent speed, at least 1 m/s); not with a "
                 "t column")),
         read=_read_path,
@@ -414,7 +415,7 @@ TASKS: dict[str, TaskEntry] = {
             arg("input", metavar="INPUT.bvh", help="motion whose kept frames are used"),
             arg("--keep", required=True, metavar="RANGES",
                 help="half-open frame ranges to keep, like Python slices, e.g. 0:30,60:90 (frames 0-29 and 60-89 of "
-                "INPUT.bvh); the first range must start at 0"),
+                "INPUT.bvh) or 0:30,60: (60 to the end); the first range must start at 0"),
             arg("--after", choices=("keep", "drop", "synthesise"), default="keep",
                 help="the input's frames after the last kept range: keep them as given (default), drop them (the "
                 "output ends with the last kept frame), or synthesise them (the prior continues freely)"),
@@ -434,8 +435,8 @@ TASKS: dict[str, TaskEntry] = {
         "prior with the prefix held (--no-settle: not settled). --plot draws a filmstrip of output and input.",
         arguments=(
             arg("input", metavar="INPUT.bvh", help="motion whose first frames are kept"),
-            arg("--prefix", required=True, type=_positive(int), metavar="N", help="frames to keep"),
-            arg("--frames", required=True, type=_positive(int), metavar="N",
+            arg("--prefix", required=True, type=positive(int), metavar="N", help="frames to keep"),
+            arg("--frames", required=True, type=positive(int), metavar="N",
                 help="frames of the output, prefix included"),
             CLEAN_FEET, *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
         build=lambda a, _, motion, prior: _autoregressive_completion(a, motion, prior),
@@ -487,7 +488,7 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
                    "filter or the rollout alone; with --method latent, the inversion alone), off by default for "
                    "edit, where with the shipped priors it does not improve the benchmark figures "
                    "(bench/results/tasks.txt)")
-    s.add_argument("--iterations", type=_non_negative_int, default=None, metavar="N",
+    s.add_argument("--iterations", type=non_negative(int), default=None, metavar="N",
                    help=f"local optimiser iterations per window (default {SolverOptions.max_iter})" + (
                        "; with --method latent, refinement iterations of the latent code (default 0: the "
                        "encoder alone; inbetween 200)" if method else ""))
@@ -497,9 +498,9 @@ def _add_task_options(p: argparse.ArgumentParser, method: bool, new_frames: bool
     swarm = ("it steers the synthesised frames of --refine; off by default, --pso-particles turns it on"
              if new_frames else "it steers synthesised frames only, so with --method ar it changes nothing here")
     s.add_argument("--no-pso", action="store_true", help=f"no particle swarm before the local optimiser ({swarm})")
-    s.add_argument("--pso-particles", type=_positive(int), default=None, metavar="N",
+    s.add_argument("--pso-particles", type=positive(int), default=None, metavar="N",
                    help=f"particles of the swarm (default {PSOOptions.particles})")
-    s.add_argument("--pso-iterations", type=_positive(int), default=None, metavar="N",
+    s.add_argument("--pso-iterations", type=positive(int), default=None, metavar="N",
                    help=f"particle swarm iterations (default {PSOOptions.iterations})" + (
                        "; with --method latent, swarm iterations over the latent code (default 0)"
                        if method else ""))
@@ -524,11 +525,11 @@ def add_io_options(p: argparse.ArgumentParser, out: str, report: str, out_dir: b
                     help="also write an interactive 3-D page of input and output, with the task's targets and "
                     "per-frame curves of its measures (open it in a web browser; it works offline)")
     io.add_argument("--force", action="store_true", help="overwrite the outputs if they exist")
-    io.add_argument("--fps", type=_positive(float), default=None,
+    io.add_argument("--fps", type=positive(float), default=None,
                     help="override the input file's frame rate (its header's Frame Time)")
     io.add_argument("--unit", choices=("auto", "cm", "m", "mm", "in"), default="auto",
                     help="length unit of the input file (default: guessed from the skeleton's size)")
-    io.add_argument("--max-frames", type=_positive(int), default=100_000, metavar="N",
+    io.add_argument("--max-frames", type=positive(int), default=100_000, metavar="N",
                     help="refuse an input that declares more frames than this, before reading them (default "
                     "100000: 14 minutes at 120 fps)")
     add_common(p)
@@ -541,7 +542,7 @@ def add_prior_options(group: argparse._ArgumentGroup) -> None:
                        help="prior checkpoint: a file, or a shipped checkpoint's name (`motionopt prior-info --list`); "
                        "default: the shipped one matching the input's skeleton")
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
-    group.add_argument("--threads", type=_positive(int), default=1, metavar="N",
+    group.add_argument("--threads", type=positive(int), default=1, metavar="N",
                        help="CPU threads for torch (default 1: the priors' small convolutions run fastest on one, and "
                        "on a busy machine two ran a path-follow 8 to 35 times slower)")
 
