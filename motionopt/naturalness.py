@@ -131,9 +131,11 @@ def spans(starts: list[float]) -> str:
 
 
 def warnings_for(seconds: list[dict], known: HumanRange | None, what: str = "output") -> list[str]:
-    """One warning per measure that leaves the data's range, naming the seconds."""
-    return [f"{what}: in seconds {spans(starts)} of {len(seconds)}, {WHAT[k]} leaves the held-out data's "
-            f"{100 - PERCENTILE:g}-{PERCENTILE:g}th percentile range of human motion"
+    """One warning per measure that leaves the data's range, naming the seconds (counted
+    from 0), e.g. 'output: hip height leaves ... in seconds 2-3 (of seconds 0-5)'."""
+    whole = "second 0" if len(seconds) == 1 else f"seconds 0-{len(seconds) - 1}"
+    return [f"{what}: {WHAT[k]} leaves the held-out data's {100 - PERCENTILE:g}-{PERCENTILE:g}th percentile "
+            f"range of human motion in second{'s' if len(starts) > 1 else ''} {spans(starts)} (of {whole})"
             for k, starts in out_of_range(seconds, known).items() if starts]
 
 

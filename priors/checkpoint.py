@@ -316,14 +316,26 @@ def shipped_checkpoints(names: tuple[str, ...] = SHIPPED) -> list[Path]:
     return [CHECKPOINT_DIR / n for n in names if (CHECKPOINT_DIR / n).exists()]
 
 
-def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "the prior") -> None:
-    """Raise a clear error unless the motion skeleton has every joint the prior models."""
+def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "the prior",
+                     kind: str = "CCNetPrior") -> None:
+    """Raise a clear error unless the motion skeleton has every joint the prior models,
+    naming the shipped checkpoint of ``kind`` (a key of ``KINDS``) that models it, if one
+    does, or else the command that trains one."""
     missing = [n for n in spec.joints if n not in skeleton.names]
     if missing:
         raise CheckpointError(
             f"{path} models a skeleton with joints {', '.join(spec.joints[:4])}, ...; the motion lacks "
-            f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}. Use a prior trained on this "
-            "skeleton (`motionopt train-prior --data YOUR_BVH_FOLDER`).")
+            f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}. {_fitting_prior(skeleton, kind)}")
+
+
+def _fitting_prior(skeleton: Skeleton, kind: str) -> str:
+    """What to use instead for ``skeleton``: a shipped prior of ``kind`` that models it, or training one."""
+    want = KINDS[kind]
+    fits = [p for p in shipped_checkpoints(want.shipped)
+            if all(n in skeleton.names for n in load_prior_cached(p).spec.joints)]
+    if fits:
+        return f"The shipped {fits[0].name} models this skeleton: pass --prior {fits[0].stem}, or leave --prior out."
+    return f"Use a prior trained on this skeleton (`motionopt {want.train_command} --data YOUR_BVH_FOLDER`)."
 
 
 def load_prior_of_kind(skeleton: Skeleton, path: str | Path | None, kind: str, needed_by: str,
@@ -342,7 +354,7 @@ def load_prior_of_kind(skeleton: Skeleton, path: str | Path | None, kind: str, n
         raise CheckpointError(f"{path} is {_a(KINDS[got].name)} prior; {needed_by} needs {_a(want.name)} prior: "
                               f"a shipped one ({', '.join(want.shipped)}) or one trained with "
                               f"`motionopt {want.train_command}`{'; ' + otherwise if otherwise else ''}")
-    check_compatible(prior.spec, skeleton, path)
+    check_compatible(prior.spec, skeleton, path, kind)
     return prior, Path(path)
 
 

@@ -36,7 +36,7 @@ class ScoreReport:
 def checked_model_motion(prior, motion: Motion) -> Motion:
     """Any motion on ``prior``'s joints at its rate (resampled, joints selected), after
     checking that its skeleton is the prior's (``CheckpointError`` says how not)."""
-    check_compatible(prior.spec, motion.skeleton)
+    check_compatible(prior.spec, motion.skeleton, kind=type(prior).__name__)
     model = Codec.of(prior).model_motion(motion)
     if not model.skeleton.same_hierarchy(prior.skeleton):
         raise CheckpointError("the motion's joints have the prior's names but another hierarchy (parents "

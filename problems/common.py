@@ -83,7 +83,7 @@ class Prepared:
 
 def prepare(motion: Motion, prior) -> Prepared:
     """Check the skeleton against the prior, convert and encode."""
-    check_compatible(prior.spec, motion.skeleton)
+    check_compatible(prior.spec, motion.skeleton, kind=type(prior).__name__)
     model = Codec.of(prior).model_motion(motion)
     codec = Codec.of(prior, model.skeleton)
     raw, x, start = codec.encode(model)

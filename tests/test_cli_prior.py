@@ -80,7 +80,8 @@ def test_score_of_a_clip_shorter_than_a_window(capsys, ckpt, tmp_path):
 
 def test_score_text_output(capsys, ckpt):
     rc, out, _ = run(capsys, "score", cmu_clips()[0], "--prior", ckpt)
-    assert rc == 0 and "nats per frame under tiny.pt" in out and "  frames 0:120" in out
+    assert rc == 0 and "nats per frame under tiny.pt" in out and "\nleast natural 1 s stretches" in out
+    assert "  frames 0:120 (0.0-1.0 s)" in out
 
 
 def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_path):

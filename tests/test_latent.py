@@ -27,7 +27,7 @@ from problems.latent import anchor_root, complete, fuse, infill, reconstruct
 from problems.ranges import at_model_rate
 
 from priorkit import cmu_clips, tiny_dataset
-from clips import DATA
+from clips import BANDAI_30, DATA
 
 WINDOW = 32
 
@@ -311,6 +311,19 @@ def test_commands_take_the_common_task_options(trained, tmp_path, capsys):
         again = build_parser().parse_args(shlex.split(rep["command"])[1:])
         assert again.command == command and again.seed == 3 and again.plot
         assert main(argv) == 1 and "pass --force" in capsys.readouterr().err  # nothing is overwritten
+
+
+def test_two_motion_commands_refuse_motions_on_two_skeletons(trained, tmp_path, capsys):
+    a, walk = str(cmu_clips()[0]), DATA / BANDAI_30
+    if not walk.exists():
+        pytest.skip("needs the Bandai excerpt in tests/data")
+    ckpt = str(trained[0])
+    for argv in (["fuse", a, str(walk), "--at", "30", "--out", str(tmp_path / "f.bvh")],
+                 ["interpolate", a, str(walk), "--out-dir", str(tmp_path / "i")]):
+        assert main([*argv, "--prior", ckpt]) != 0
+        err = capsys.readouterr().err
+        assert f"{walk} is on another skeleton than {a}: it lacks hip" in err and "one skeleton" in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_training_progress_off_a_terminal_is_one_line_per_epoch(capsys, tmp_path):

@@ -285,6 +285,21 @@ def test_motion_of_another_skeleton_is_refused(prior):
         checked_features(prior, legless)
 
 
+def test_a_refused_skeleton_is_pointed_to_the_shipped_prior_that_models_it():
+    from motionopt import bvh
+    from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
+
+    bandai = CHECKPOINT_DIR / "bandai-locomotion-ccnet.pt"
+    if not bandai.exists():
+        pytest.skip("the shipped checkpoints are not here")
+    spec = load_prior_cached(bandai).spec
+    cmu = bvh.load(cmu_clips()[0]).skeleton
+    with pytest.raises(CheckpointError, match="shipped cmu-ccnet.pt models this skeleton: pass --prior cmu-ccnet"):
+        check_compatible(spec, cmu)
+    with pytest.raises(CheckpointError, match="shipped cmu-latent.pt models this skeleton"):
+        check_compatible(spec, cmu, kind="LatentPrior")
+
+
 def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
     from motionopt import bvh
     from motionopt.motion import Motion

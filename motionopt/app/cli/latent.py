@@ -206,6 +206,12 @@ def _start(args: argparse.Namespace, names: tuple[str, ...], stems: list[str]) -
     use_threads(args)
     motions = [load_input(args, path) for path in inputs]
     prior, prior_path = load_prior(motions[0], args, "LatentPrior")
+    for path, motion in zip(inputs[1:], motions[1:]):
+        missing = [n for n in prior.spec.joints if n not in motion.skeleton.names]
+        if missing:
+            raise UserError(f"{path} is on another skeleton than {inputs[0]}: it lacks {', '.join(missing[:4])}"
+                            f"{' ...' if len(missing) > 4 else ''}, which {prior_path.name} models for "
+                            f"{inputs[0]}; {args.command} needs both motions on one skeleton")
     return LatentRun(args, names, motions, prior, prior_path, bvhs, pictures, report, view, started)
 
 

@@ -313,8 +313,11 @@ def cmd_score(args: argparse.Namespace) -> int:
     elif not args.quiet:
         print(f"{args.input}: {report.nll_per_frame:.2f} nats per frame under {path.name} "
               f"(lower is more natural; {report.frames} frames at {motion.fps:g} fps)")
+        if report.worst:
+            seconds = (report.worst[0][1] - report.worst[0][0]) / motion.fps
+            print(f"least natural {seconds:g} s stretches (frames as half-open ranges of the file's):")
         for a, b, v in report.worst:
-            print(f"  frames {a}:{b}  {v:.2f} nats per frame")
+            print(f"  frames {a}:{b} ({a / motion.fps:.1f}-{b / motion.fps:.1f} s)  {v:.2f} nats per frame")
         if verdict:
             print(f"degraded copies (the clip scores {verdict.real:.2f} with heights from its own ground):")
             for name, v in verdict.copies.items():
