@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Sequence, TypeVar
 
 import numpy as np
 import torch
@@ -247,6 +247,10 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
     return terms
 
 
+#: A task result that ``judged`` fills in.
+R = TypeVar("R")
+
+
 @dataclass
 class TaskResult:
     """An edited motion on the user's skeleton, with the solver's report and task metrics;
@@ -288,11 +292,13 @@ class TaskResult:
         return r
 
 
-def judged(result: TaskResult, prior, ground: float) -> TaskResult:
-    """``result`` with each second of its model motion (floor at ``ground``) measured
-    against the held-out data's range of human motion (``motionopt.naturalness``), and a
-    warning (logged) for each measure that leaves it, naming the seconds."""
-    seconds = naturalness.per_second(prior, result.model_motion, ground)
+def judged(result: R, prior, ground: float, model: Motion | None = None) -> R:
+    """``result`` (a ``TaskResult`` or ``problems.latent.LatentTaskResult``) with each second
+    of ``model`` (its model motion by default; a motion on ``prior``'s joints and rate,
+    floor at ``ground``) measured against the held-out data's range of human motion
+    (``motionopt.naturalness``), and a warning (logged) for each measure that leaves it,
+    naming the seconds."""
+    seconds = naturalness.per_second(prior, result.model_motion if model is None else model, ground)
     known = naturalness.HumanRange.of_prior(prior)
     return replace(result, per_second=seconds, human_range=known,
                    naturalness_warnings=warned(naturalness.warnings_for(seconds, known)))

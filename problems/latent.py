@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from motionopt import naturalness
 from motionopt import rotations as R
 from motionopt.codec import Codec
 from motionopt.features import RootStart, heading_angle, to_file_motion, wrap_angle
@@ -29,7 +30,7 @@ from priors.latent import LatentPrior
 from priors.latent_density import LatentDensity
 from priors.semantic import Direction, directions_of, fit_attribute_directions
 
-from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, prepare, run, splice,
+from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, judged, prepare, run, splice,
                      standard_terms)
 from .ranges import at_model_rate, check_ranges, gaps, kept_mask
 from .settle import Settle
@@ -74,12 +75,23 @@ class LatentTaskResult:
     model_motion: Motion
     inversion: InversionResult
     metrics: dict = field(default_factory=dict)
+    #: Each second measured and judged under an autoregressive prior's data range, as a
+    #: ``TaskResult``'s (``common.judged``; empty when nothing judged it).
+    per_second: list[dict] = field(default_factory=list)
+    human_range: naturalness.HumanRange | None = None
+    naturalness_warnings: list[str] = field(default_factory=list)
+
+    def naturalness_line(self) -> str | None:
+        """How many seconds stay in the data's range, in one sentence (None: not judged)."""
+        return naturalness.summary_line(self.per_second, self.human_range) if self.per_second else None
 
     def report(self) -> dict:
         inv = self.inversion
         return {"metrics": self.metrics, "frames": self.motion.num_frames, "fps": self.motion.fps,
                 "windows": len(inv.starts), "objective_start": inv.objective_start, "objective": inv.objective,
-                "nit": inv.nit, "timings": inv.timings}
+                "nit": inv.nit, "timings": inv.timings, "per_second": self.per_second,
+                "human_range": None if self.human_range is None else self.human_range.to_dict(),
+                "warnings": self.naturalness_warnings}
 
 
 def result_of(prior: LatentPrior, x: Tensor, start: RootStart, original: Motion, inv: InversionResult,
@@ -339,6 +351,9 @@ class LatentTask:
     #: An autoregressive prior that settles the synthesised frames after that solve
     #: (``settled``, the kept frames held); None: as the latent prior made them.
     settle_prior: object | None = None
+    #: An autoregressive prior whose checkpoint's held-out range judges each second of the
+    #: output (``common.judged``), as the autoregressive tasks' are; None: not judged.
+    judge_prior: object | None = None
 
     def __post_init__(self) -> None:
         if self.keep is not None:
@@ -346,15 +361,16 @@ class LatentTask:
 
     @classmethod
     def completion(cls, motion: Motion, prefix: int, n_frames: int, prior: LatentPrior,
-                   options: InversionOptions = InversionOptions(), settle_prior=None) -> LatentTask:
+                   options: InversionOptions = InversionOptions(), settle_prior=None,
+                   judge_prior=None) -> LatentTask:
         """Prefix completion: keep the first ``prefix`` frames, generate up to ``n_frames``,
-        settled under ``settle_prior`` when one is given."""
+        settled under ``settle_prior`` and judged under ``judge_prior`` when given."""
         if not 0 < prefix <= motion.num_frames:
             raise ValueError(f"--prefix {prefix} must be between 1 and the clip's {motion.num_frames} frames")
         if n_frames <= prefix:
             raise ValueError(f"--frames {n_frames} must be larger than --prefix {prefix}")
         return cls(hold_last_frame(motion[:prefix], n_frames), prior, [(0, prefix)], options,
-                   settle_prior=settle_prior)
+                   settle_prior=settle_prior, judge_prior=judge_prior)
 
     def output_ranges(self) -> tuple[list[tuple[int, int]], int]:
         """The ranges the output copies from the input and its length (input frames), as
@@ -364,6 +380,13 @@ class LatentTask:
         return (self.keep if self.keep is not None else [(0, n)]), n
 
     def solve(self) -> LatentTaskResult:
+        result = self._solved()
+        if self.judge_prior is None:
+            return result
+        ground = prepare(self.motion, self.judge_prior).start.ground
+        return judged(result, self.judge_prior, ground, Codec.of(self.judge_prior).model_motion(result.motion))
+
+    def _solved(self) -> LatentTaskResult:
         if self.keep is None:
             return reconstruct(self.prior, self.motion, self.options)
         seen = kept_mask(self.keep, self.motion.num_frames)

@@ -294,6 +294,7 @@ def test_latent_method_denoises_and_completes(capsys, clips, tmp_path):
                           "--iterations", 0, "--out", out, "--force", "--no-refine")
     assert rc == 0, err
     assert "from the encoder alone" in stdout   # --iterations 0: no refinement of the codes
+    assert "naturalness per second:" in stdout  # judged under the skeleton's shipped autoregressive prior
 
 
 def test_force_overwrites_and_without_it_nothing_changes(capsys, clips, tmp_path):

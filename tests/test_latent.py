@@ -621,7 +621,8 @@ def test_latent_completion_settles_the_new_frames_and_holds_the_prefix(trained, 
     """complete --method latent settles the frames after the prefix under the shipped
     autoregressive prior by default, its report saying by how much, with the prefix exactly
     the input's; --no-settle writes them as the latent prior made them; --settle-prior
-    without --method latent is refused."""
+    without --method latent is refused. Either way each second of the output is judged
+    against the autoregressive prior's held-out range, as the autoregressive tasks' are."""
     clip = str(cmu_clips()[0])
     runs = {}
     for flag in ([], ["--no-settle"]):
@@ -629,7 +630,10 @@ def test_latent_completion_settles_the_new_frames_and_holds_the_prefix(trained, 
         argv = ["complete", clip, "--prefix", "40", "--frames", "100", "--method", "latent", "--prior",
                 str(trained[0]), "--out", str(out), "--report", str(report), "-q", *flag]
         assert main(argv) == 0, capsys.readouterr().err
-        runs[bool(flag)] = (bvh.load(out), json.loads(report.read_text())["metrics"])
+        rep = json.loads(report.read_text())
+        assert len(rep["per_second"]) == 1 and rep["human_range"] is not None  # 100 frames at 120 fps: 1 s at 30
+        assert set(rep["per_second"][0]) >= {"nll_per_frame", "skating_m_per_s", "hip_height_m"}
+        runs[bool(flag)] = (bvh.load(out), rep["metrics"])
     (settled, m_settled), (made, m_made) = runs[False], runs[True]
     source = bvh.load(clip)
     assert np.array_equal(settled.rotations[:40], source.rotations[:40])
@@ -655,6 +659,7 @@ def test_latent_inbetweening_also_starts_a_long_gap_from_the_encoders_fill(prior
     result = LatentTask(seg, prior, keep, refined).solve()
     starts = result.metrics["map_starts_objective"]
     assert len(starts) == 2 and result.metrics["map_objective"] == min(starts)
+    assert result.per_second == [] and result.naturalness_line() is None  # no judge prior given
     for a, b in keep:
         assert np.array_equal(result.motion.rotations[a:b], seg.rotations[a:b])
     assert len(LatentTask(seg, prior, keep).solve().metrics["map_starts_objective"]) == 1

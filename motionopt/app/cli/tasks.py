@@ -286,7 +286,8 @@ def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], mot
     problems = _problems()
     ranges, length = problems.ranges.after_last_range(keep, motion.num_frames, args.after)
     return _latent_refined(args, problems.latent.LatentTask(motion[:length], prior, ranges,
-                                                            problems.latent.gap_inversion_options()))
+                                                            problems.latent.gap_inversion_options(),
+                                                            judge_prior=judging_prior(motion)))
 
 
 def _latent_refined(args: argparse.Namespace, task):
@@ -343,6 +344,26 @@ def settle_prior(args: argparse.Namespace, motion: Motion):
         return None
     return load_prior_of_kind(motion.skeleton, args.settle_prior, "CCNetPrior", f"{args.command} --settle-prior",
                               "or pass --no-settle")[0]
+
+
+def judging_prior(motion: Motion):
+    """The shipped autoregressive prior of ``motion``'s skeleton, whose held-out range
+    judges each second of a --method latent output; None when none models the skeleton."""
+    from priors.checkpoint import CheckpointError, load_prior_of_kind
+
+    try:
+        return load_prior_of_kind(motion.skeleton, None, "CCNetPrior", "judging the output")[0]
+    except CheckpointError:
+        return None
+
+
+def _latent_completion(args: argparse.Namespace, motion: Motion, prior):
+    """``complete --method latent``: settled under the autoregressive prior (--settle-prior,
+    --no-settle), and judged under it or, unsettled, under the skeleton's shipped one."""
+    settler = settle_prior(args, motion)
+    return _latent_refined(args, _problems().latent.LatentTask.completion(
+        motion, args.prefix, args.frames, prior, settle_prior=settler,
+        judge_prior=settler if settler is not None else judging_prior(motion)))
 
 
 def _autoregressive_completion(args: argparse.Namespace, motion: Motion, prior):
@@ -440,8 +461,7 @@ TASKS: dict[str, TaskEntry] = {
                 help="frames of the output, prefix included"),
             CLEAN_FEET, *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
         build=lambda a, _, motion, prior: _autoregressive_completion(a, motion, prior),
-        latent=lambda a, _, motion, prior: _latent_refined(a, _problems().latent.LatentTask.completion(
-            motion, a.prefix, a.frames, prior, settle_prior=settle_prior(a, motion)))),
+        latent=lambda a, _, motion, prior: _latent_completion(a, motion, prior)),
     "edit": TaskEntry(
         help="move chosen joints to targets at chosen frames (spatial edit)",
         description="Meet the joint targets in TARGETS.json, a list of {\"joint\": NAME, \"frame\": I or [I, J], "
@@ -841,7 +861,7 @@ def cmd_task(args: argparse.Namespace) -> int:
     if args.quiet:
         return 0
     lines = run.task.summary(result)
-    if hasattr(result, "naturalness_line"):
+    if hasattr(result, "naturalness_line") and result.naturalness_line() is not None:
         lines.append(result.naturalness_line())
     solver = getattr(result, "solver", None)
     if solver is not None:
