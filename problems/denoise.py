@@ -205,6 +205,9 @@ class Denoise:
     repair_glitches: bool = True
     prior_weight: float = 0.5
     prior_min_log_std: float | None = -2.5
+    #: An autoregressive prior whose held-out range judges each second of the output
+    #: (``common.judged``); None: the prior solved under (a latent density carries none).
+    judge_prior: object | None = None
 
     def __post_init__(self) -> None:
         for name in ("sigma_root", "sigma_angle", "cutoff_hz"):
@@ -303,7 +306,10 @@ class Denoise:
             "mean_change_cm": float((after - before).norm(dim=-1).mean() * 100),
             "frames_per_second": n / max(seconds, 1e-9),
         }
-        return judged(TaskResult(output, model, result, metrics, setup.settings), prior, prep.start.ground)
+        result = TaskResult(output, model, result, metrics, setup.settings)
+        if self.judge_prior is None:
+            return judged(result, prior, prep.start.ground)
+        return judged(result, self.judge_prior, prep.start.ground, Codec.of(self.judge_prior).model_motion(output))
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

@@ -184,8 +184,10 @@ def reconstruct(prior: LatentPrior, motion: Motion, options: InversionOptions = 
 
 def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOptions = InversionOptions(),
          blend_frames: int = 8) -> LatentTaskResult:
-    """A's frames before ``at`` followed by B's frames from ``at`` (file frame numbers, MoDi's
-    fusion), joined through the encoder and generator. B's root continues from A's.
+    """A's frames before ``at`` (a frame of A) followed by B's frames from the same time
+    into B (MoDi's fusion), joined through the encoder and generator. B's root continues
+    from A's. Counted in each file's own frames, A at 120 and B at 60 fps would hand over
+    from A's second 1 to B's second 2.
 
     The generated motion G(I(.)) replaces the two parts within ``blend_frames`` of the seam
     and fades back into them over as many frames again (``smoothstep``), so that beyond
@@ -195,10 +197,10 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     the seam's ``blend_frames``."""
     pa, pb = prepare(a, prior), prepare(b, prior)
     t = _model_frame(prior, a, at)
-    tb = _model_frame(prior, b, at)
-    if not 0 < t < len(pa.x) or not 0 <= tb < len(pb.x) - 1:
-        raise ValueError(f"--at {at} must fall inside both clips (A has {a.num_frames} frames, B {b.num_frames})")
-    x = torch.cat((pa.x[:t], pb.x[tb:]))
+    if not 0 < t < len(pa.x) or not t < len(pb.x) - 1:
+        raise ValueError(f"--at {at} ({at / a.fps:.2f} s) must fall inside both clips (A lasts "
+                         f"{a.duration:.2f} s, {a.num_frames} frames; B {b.duration:.2f} s)")
+    x = torch.cat((pa.x[:t], pb.x[t:]))
     weights = torch.ones(len(x))
     weights[max(0, t - blend_frames):t + blend_frames] = 0.0
     term = FidelityTerm(prior, x, weights, options.position_sigma)

@@ -146,7 +146,12 @@ def goal_of(prior: LatentPrior, attribute: str) -> EditGoal:
             return torch.log(classifier.probabilities(win)[:, j].clamp_min(1e-9))
 
         def target(m0: Tensor, k: float) -> Tensor:
-            return torch.log((m0.exp() + STYLE_PROBABILITY_PER_UNIT * k).clamp(1e-3, 0.95))
+            # within 0.001-0.95, but never against the edit's sign: a window already at 0.97
+            # is not asked down to 0.95 by a positive strength
+            p0 = m0.exp()
+            goal = p0 + STYLE_PROBABILITY_PER_UNIT * k
+            goal = torch.maximum(goal.clamp(max=0.95), p0) if k >= 0 else torch.minimum(goal.clamp(min=1e-3), p0)
+            return torch.log(goal)
 
         return EditGoal(f"the style classifier's probability {STYLE_PROBABILITY_PER_UNIT:+g} per unit",
                         log_probability, target, 0.1, show=lambda v: f"probability {math.exp(v):.2f}")

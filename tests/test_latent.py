@@ -251,8 +251,9 @@ def test_fuse_keeps_each_part_beyond_the_seam_and_joins_them(prior):
     concatenation jumps there)."""
     a, b = (bvh.load(p) for p in cmu_clips())
     codec = Codec.of(prior)
-    r = fuse(prior, a, b, at=160)  # A at 120 fps, B at 60: model frames 40 and 80
-    t, tb = r.metrics["seam_frame_model"], 80
+    assert (a.fps, b.fps) == (120, 60)
+    r = fuse(prior, a, b, at=160)  # 1.33 s into A, 160 of its frames; B is taken from 1.33 s too
+    t, tb = r.metrics["seam_frame_model"], 40
     out, ma, mb = r.model_motion, codec.model_motion(a), codec.model_motion(b)
     assert t == 40 and out.num_frames >= t + mb.num_frames - tb
     assert np.abs(out.rotations[: t - 16, 1:] - ma.rotations[: t - 16, 1:]).max() < 1e-4

@@ -41,6 +41,18 @@ def test_shipped_style_edit_raises_the_style_probability():
         assert high > low + 0.02, style
 
 
+def test_a_style_edit_never_asks_a_window_against_its_sign():
+    """The style goal's probability targets move by 0.4 per unit within 0.001-0.95, but a
+    window already beyond that bound in the edit's direction is asked to stay where it is."""
+    from problems.latent_edit import goal_of
+
+    goal = goal_of(load_prior(CHECKPOINT_DIR / "bandai-latent.pt"), "style:elderly")
+    p0 = torch.tensor([0.97, 0.5, 0.0005], dtype=torch.float64)
+    up, down = (goal.target(p0.log(), k).exp() for k in (1.0, -1.0))
+    assert torch.allclose(up, torch.tensor([0.97, 0.9, 0.4005], dtype=torch.float64))
+    assert torch.allclose(down, torch.tensor([0.57, 0.1, 0.0005], dtype=torch.float64))
+
+
 def test_classifier_rejects_an_unknown_style():
     clf = style_classifier_of(load_prior(CHECKPOINT_DIR / "bandai-latent.pt").metadata)
     with pytest.raises(ValueError, match="knows: active"):

@@ -85,7 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("motionopt", "priors", "problems"):
         logging.getLogger(name).setLevel(level)
     try:
-        return int(args.func(args) or 0)
+        from tqdm.contrib.logging import logging_redirect_tqdm
+
+        with logging_redirect_tqdm():  # warnings print above a progress bar, not onto its line
+            return int(args.func(args) or 0)
     except USER_ERRORS as e:
         print(f"motionopt {args.command}: error: {error_message(e)}", file=sys.stderr)
         return 1

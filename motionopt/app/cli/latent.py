@@ -52,7 +52,7 @@ def register(sub) -> None:
                        "and the fused motion.")
     p.add_argument("a", metavar="A.bvh", help="BVH file whose start is kept")
     p.add_argument("b", metavar="B.bvh", help="BVH file whose end is kept")
-    p.add_argument("--at", type=int, required=True, help="frame (of the files) where A hands over to B")
+    p.add_argument("--at", type=int, required=True, help="frame of A where it hands over to B, which is taken from the same time into it")
     _task_options(p, "BVH file to write, on A's skeleton, unit and frame rate")
     p.set_defaults(func=cmd_fuse)
 

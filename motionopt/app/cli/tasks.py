@@ -423,7 +423,8 @@ TASKS: dict[str, TaskEntry] = {
                                                                       repair_glitches=not a.keep_glitches),
         latent=lambda a, _, motion, prior: _problems().denoise.Denoise(motion, _latent_density(prior),
                                                                        refine=a.refine is not False,
-                                                                       repair_glitches=not a.keep_glitches),
+                                                                       repair_glitches=not a.keep_glitches,
+                                                                       judge_prior=judging_prior(motion)),
         draw=_foot_trajectory, new_frames=False),
     "inbetween": TaskEntry(
         help="fill the frames between kept frame ranges",
