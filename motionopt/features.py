@@ -85,6 +85,11 @@ class FeatureSpec:
         return cls(**d)
 
 
+def missing_joints(spec: FeatureSpec, skeleton: Skeleton) -> list[str]:
+    """The joints ``spec`` models that ``skeleton`` lacks, in the spec's order."""
+    return [n for n in spec.joints if n not in skeleton.names]
+
+
 def default_spec(skeleton: Skeleton, fps: float = 30.0, drop: tuple[str, ...] = DEFAULT_DROP) -> FeatureSpec:
     """A spec for any humanoid skeleton: all joints but fingers and eyes; contacts on the
     feet and toes found by name. A static top joint (e.g. Bandai's ``joint_Root``) is
@@ -124,7 +129,7 @@ def to_model_motion(motion: Motion, spec: FeatureSpec) -> Motion:
                 f"the prior's root joint {spec.joints[0]!r} is not the file's root {m.skeleton.names[0]!r} "
                 "and the joints above it move: this skeleton does not match the prior")
         m = rerooted
-    missing = [n for n in spec.joints if n not in m.skeleton.names]
+    missing = missing_joints(spec, m.skeleton)
     if missing:
         raise ValueError(f"skeleton lacks joints the prior models: {', '.join(missing)}")
     m = m.select_joints(list(spec.joints)).bake_translations(tolerance=1e-4)

@@ -17,7 +17,7 @@ import torch
 
 from motionopt.atomic import atomic_file
 from motionopt.dataset import Normalizer
-from motionopt.features import FEATURE_VERSION, FeatureSpec
+from motionopt.features import FEATURE_VERSION, FeatureSpec, missing_joints
 from motionopt.skeleton import Skeleton
 
 CHECKPOINT_DIR = Path(__file__).parent / "checkpoints"
@@ -234,7 +234,7 @@ def _check_skeleton(d: dict, spec: FeatureSpec, path: Path) -> None:
         skeleton = skeleton_from_dict(d)
     except ValueError as e:
         raise CheckpointError(f"{path} is not a usable prior checkpoint: its skeleton is invalid ({e})") from None
-    missing = [n for n in spec.joints if n not in skeleton.names]
+    missing = missing_joints(spec, skeleton)
     _need(not missing, path, f"its skeleton lacks the modelled joints {shown(missing)}")
 
 
@@ -321,7 +321,7 @@ def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "
     """Raise a clear error unless the motion skeleton has every joint the prior models,
     naming the shipped checkpoint of ``kind`` (a key of ``KINDS``) that models it, if one
     does, or else the command that trains one."""
-    missing = [n for n in spec.joints if n not in skeleton.names]
+    missing = missing_joints(spec, skeleton)
     if missing:
         raise CheckpointError(
             f"{path} models a skeleton with joints {', '.join(spec.joints[:4])}, ...; the motion lacks "
@@ -331,11 +331,11 @@ def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "
 def _fitting_prior(skeleton: Skeleton, kind: str) -> str:
     """What to use instead for ``skeleton``: a shipped prior of ``kind`` that models it, or training one."""
     want = KINDS[kind]
-    fits = [p for p in shipped_checkpoints(want.shipped)
-            if all(n in skeleton.names for n in load_prior_cached(p).spec.joints)]
-    if fits:
-        return f"The shipped {fits[0].name} models this skeleton: pass --prior {fits[0].stem}, or leave --prior out."
-    return f"Use a prior trained on this skeleton (`motionopt {want.train_command} --data YOUR_BVH_FOLDER`)."
+    try:
+        fit = find_prior_for(skeleton, want.shipped, want.train_command)
+    except CheckpointError:
+        return f"Use a prior trained on this skeleton (`motionopt {want.train_command} --data YOUR_BVH_FOLDER`)."
+    return f"The shipped {fit.name} models this skeleton: pass --prior {fit.stem}, or leave --prior out."
 
 
 def load_prior_of_kind(skeleton: Skeleton, path: str | Path | None, kind: str, needed_by: str,
@@ -367,8 +367,7 @@ def find_prior_for(skeleton: Skeleton, names: tuple[str, ...] = SHIPPED,
                    train_command: str = "train-prior") -> Path:
     """The first shipped checkpoint (of ``names``) whose modelled joints the skeleton has."""
     for path in shipped_checkpoints(names):
-        spec = load_prior_cached(path).spec
-        if all(n in skeleton.names for n in spec.joints):
+        if not missing_joints(load_prior_cached(path).spec, skeleton):
             return path
     raise CheckpointError(
         f"no shipped prior models this skeleton (root {skeleton.names[0]!r}, {skeleton.num_joints} joints); "

@@ -247,8 +247,8 @@ def standard_terms(prep: Prepared, prior, sigmas: TermSigmas, start: torch.Tenso
     return terms
 
 
-#: A task result that ``judged`` fills in.
-R = TypeVar("R")
+#: A task result that ``judged`` fills in (``TaskResult``, ``problems.latent.LatentTaskResult``).
+Judged = TypeVar("Judged")
 
 
 @dataclass
@@ -292,7 +292,7 @@ class TaskResult:
         return r
 
 
-def judged(result: R, prior, ground: float, model: Motion | None = None) -> R:
+def judged(result: Judged, prior, ground: float, model: Motion | None = None) -> Judged:
     """``result`` (a ``TaskResult`` or ``problems.latent.LatentTaskResult``) with each second
     of ``model`` (its model motion by default; a motion on ``prior``'s joints and rate,
     floor at ``ground``) measured against the held-out data's range of human motion

@@ -186,8 +186,8 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
          blend_frames: int = 8) -> LatentTaskResult:
     """A's frames before ``at`` (a frame of A) followed by B's frames from the same time
     into B (MoDi's fusion), joined through the encoder and generator. B's root continues
-    from A's. Counted in each file's own frames, A at 120 and B at 60 fps would hand over
-    from A's second 1 to B's second 2.
+    from A's. (Counting ``at`` in each file's own frames instead, as before, handed over
+    from A's second 1 to B's second 2 with A at 120 fps and B at 60.)
 
     The generated motion G(I(.)) replaces the two parts within ``blend_frames`` of the seam
     and fades back into them over as many frames again (``smoothstep``), so that beyond

@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from motionopt.features import missing_joints
 from priors.latent import LatentConfig
 from priors.train_latent import PHASES
 
@@ -52,7 +53,8 @@ def register(sub) -> None:
                        "and the fused motion.")
     p.add_argument("a", metavar="A.bvh", help="BVH file whose start is kept")
     p.add_argument("b", metavar="B.bvh", help="BVH file whose end is kept")
-    p.add_argument("--at", type=int, required=True, help="frame of A where it hands over to B, which is taken from the same time into it")
+    p.add_argument("--at", type=int, required=True,
+                   help="frame of A where it hands over to B, which is taken from the same time into it")
     _task_options(p, "BVH file to write, on A's skeleton, unit and frame rate")
     p.set_defaults(func=cmd_fuse)
 
@@ -207,7 +209,7 @@ def _start(args: argparse.Namespace, names: tuple[str, ...], stems: list[str]) -
     motions = [load_input(args, path) for path in inputs]
     prior, prior_path = load_prior(motions[0], args, "LatentPrior")
     for path, motion in zip(inputs[1:], motions[1:]):
-        missing = [n for n in prior.spec.joints if n not in motion.skeleton.names]
+        missing = missing_joints(prior.spec, motion.skeleton)
         if missing:
             raise UserError(f"{path} is on another skeleton than {inputs[0]}: it lacks {', '.join(missing[:4])}"
                             f"{' ...' if len(missing) > 4 else ''}, which {prior_path.name} models for "

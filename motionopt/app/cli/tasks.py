@@ -862,8 +862,9 @@ def cmd_task(args: argparse.Namespace) -> int:
     if args.quiet:
         return 0
     lines = run.task.summary(result)
-    if hasattr(result, "naturalness_line") and result.naturalness_line() is not None:
-        lines.append(result.naturalness_line())
+    naturalness_line = result.naturalness_line() if hasattr(result, "naturalness_line") else None
+    if naturalness_line is not None:
+        lines.append(naturalness_line)
     solver = getattr(result, "solver", None)
     if solver is not None:
         lines.append(f"objective {solver.fun_start:.4g} -> {solver.fun:.4g} over {len(solver.windows)} windows, "
