@@ -278,6 +278,8 @@ def planted_root_step(prev: Tensor, new: Tensor, spec: FeatureSpec, skeleton: Sk
     steps are weighted to the lowest by exp(-(height - the lowest's) / ``sharpness``),
     a joint's height above its rest (0 without ``rest``) the higher of its two frames';
     ``sharpness`` infinite: their mean."""
+    if not sharpness > 0:
+        raise ValueError(f"sharpness must be positive (m, or inf for the mean), got {sharpness}")
     s = spec.slices()
     both = torch.stack((prev, new), dim=-2).clone()
     both[..., s["root_delta"]] = 0.0

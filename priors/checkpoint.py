@@ -329,8 +329,11 @@ def check_compatible(spec: FeatureSpec, skeleton: Skeleton, path: str | Path = "
 
 
 def _fitting_prior(skeleton: Skeleton, kind: str) -> str:
-    """What to use instead for ``skeleton``: a shipped prior of ``kind`` that models it, or training one."""
-    want = KINDS[kind]
+    """What to use instead for ``skeleton``: a shipped prior of ``kind`` that models it, or
+    training one (a kind without shipped checkpoints, as the latent prior's density wrapper: training)."""
+    want = KINDS.get(kind)
+    if want is None:
+        return "Use a prior trained on this skeleton."
     try:
         fit = find_prior_for(skeleton, want.shipped, want.train_command)
     except CheckpointError:

@@ -166,6 +166,8 @@ def test_planted_root_step_is_carried_by_the_lowest_planted_joint(path):
     assert torch.allclose(both, (first_only + w * second_only) / (1 + w), atol=1e-6)
     mean = planted_root_step(prev, new, spec, model.skeleton, rest, sharpness=float("inf"))[0, s["root_delta"]]
     assert torch.allclose(mean, (first_only + second_only) / 2, atol=1e-6)
+    with pytest.raises(ValueError, match="sharpness must be positive"):
+        planted_root_step(prev, new, spec, model.skeleton, rest, sharpness=0.0)
 
 
 @pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])

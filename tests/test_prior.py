@@ -298,6 +298,8 @@ def test_a_refused_skeleton_is_pointed_to_the_shipped_prior_that_models_it():
         check_compatible(spec, cmu)
     with pytest.raises(CheckpointError, match="shipped cmu-latent.pt models this skeleton"):
         check_compatible(spec, cmu, kind="LatentPrior")
+    with pytest.raises(CheckpointError, match="Use a prior trained on this skeleton"):
+        check_compatible(spec, cmu, kind="LatentDensity")  # the latent prior as a MAP term: no shipped kind
 
 
 def test_motion_with_the_same_names_but_another_hierarchy_is_refused(prior):
