@@ -12,7 +12,7 @@ import torch
 
 from motionopt import naturalness
 from motionopt.codec import Codec
-from motionopt.features import RootStart, contact_labels, to_file_motion
+from motionopt.features import RootStart, contact_labels, estimate_ground, to_file_motion
 from motionopt.info import MAX_HUMAN_SPEED  # noqa: F401 - the tasks' limit on a pace, with the engine's clip checks
 from motionopt.motion import Motion
 from motionopt.prior import ChannelClamp
@@ -302,6 +302,15 @@ def judged(result: Judged, prior, ground: float, model: Motion | None = None) ->
     known = naturalness.HumanRange.of_prior(prior)
     return replace(result, per_second=seconds, human_range=known,
                    naturalness_warnings=warned(naturalness.warnings_for(seconds, known)))
+
+
+def judged_under(result: Judged, judge_prior, original: Motion) -> Judged:
+    """``judged`` under ``judge_prior``, an autoregressive prior other than the one that
+    made ``result`` (a latent prior's range of human motion is not measured): the output
+    is put on its joints and rate, the floor is where it finds it in ``original`` (the input)."""
+    codec = Codec.of(judge_prior)
+    ground = estimate_ground(codec.model_motion(original).positions(), judge_prior.spec.contact_indices())
+    return judged(result, judge_prior, ground, codec.model_motion(result.motion))
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,

@@ -18,8 +18,8 @@ from motionopt.smoothing import aligned_quaternions, butterworth, denoising_fami
 from motionopt.objective import MAPObjective, PoseFidelityTerm
 from motionopt.solver import Problem, SolverOptions, solve
 
-from .common import (ACCELERATION_FLOOR, Prepared, TaskResult, TermSigmas, acceleration_sigmas, judged, plant_feet, prepare,
-                     standard_terms)
+from .common import (ACCELERATION_FLOOR, Prepared, TaskResult, TermSigmas, acceleration_sigmas, judged, judged_under,
+                     plant_feet, prepare, standard_terms)
 
 #: Noise std (robust, from fourth differences) over the std of white noise's fourth difference.
 _D4 = 1.4826 / np.sqrt(70.0)
@@ -309,7 +309,7 @@ class Denoise:
         result = TaskResult(output, model, result, metrics, setup.settings)
         if self.judge_prior is None:
             return judged(result, prior, prep.start.ground)
-        return judged(result, self.judge_prior, prep.start.ground, Codec.of(self.judge_prior).model_motion(output))
+        return judged_under(result, self.judge_prior, self.motion)
 
     def summary(self, result: TaskResult) -> list[str]:
         """The metrics of ``result`` (of ``solve``) in sentences, for the command line."""

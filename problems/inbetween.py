@@ -18,7 +18,7 @@ from .common import (JOIN_SIGMA_ANGLE, JOIN_SIGMA_ROOT, MAX_HUMAN_SPEED, TaskRes
                      completion_sigmas, gap_sigmas, join_terms, judged, model_frames_in, plant_feet, prepare,
                      root_features, run, splice, standard_terms, warned)
 from .latent import long_gaps, masked_fills, with_long_gaps_from
-from .ranges import after_last_range, check_ranges, gaps, kept_mask
+from .ranges import after_last_range, check_ranges, gaps, kept_mask, require_a_gap
 from .rollout import chosen_rollout, lift_limit
 
 
@@ -88,7 +88,7 @@ class Inbetween:
         self.keep = check_ranges(list(self.keep), self.motion.num_frames)
         if self.n_frames is not None and self.n_frames < self.keep[-1][1]:
             raise ValueError(f"--frames {self.n_frames} is shorter than the kept frames (up to {self.keep[-1][1]})")
-        after_last_range(self.keep, self.motion.num_frames, self.after)   # checks ``after``
+        require_a_gap(*self.output_ranges())   # output_ranges checks ``after``
 
     def output_ranges(self) -> tuple[list[tuple[int, int]], int]:
         """The ranges the output copies from the input and its length (input frames)."""

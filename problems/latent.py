@@ -30,9 +30,9 @@ from priors.latent import LatentPrior
 from priors.latent_density import LatentDensity
 from priors.semantic import Direction, directions_of, fit_attribute_directions
 
-from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, judged, prepare, run, splice,
+from .common import (Prepared, completion_sigmas, gap_sigmas, join_terms, judged_under, prepare, run, splice,
                      standard_terms)
-from .ranges import at_model_rate, check_ranges, gaps, kept_mask
+from .ranges import at_model_rate, check_ranges, gaps, kept_mask, require_a_gap
 from .settle import Settle
 
 
@@ -198,8 +198,12 @@ def fuse(prior: LatentPrior, a: Motion, b: Motion, at: int, options: InversionOp
     pa, pb = prepare(a, prior), prepare(b, prior)
     t = _model_frame(prior, a, at)
     if not 0 < t < len(pa.x) or not t < len(pb.x) - 1:
-        raise ValueError(f"--at {at} ({at / a.fps:.2f} s) must fall inside both clips (A lasts "
-                         f"{a.duration:.2f} s, {a.num_frames} frames; B {b.duration:.2f} s)")
+        accepted = [f for f in range(a.num_frames)
+                    if 0 < _model_frame(prior, a, f) < min(len(pa.x), len(pb.x) - 1)]
+        span = f"frames {accepted[0]}-{accepted[-1]} of A" if accepted else "no frame: a clip is too short"
+        raise ValueError(f"--at {at} ({at / a.fps:.2f} s) must fall inside both clips, with a model frame "
+                         f"({prior.spec.fps:g} fps) on each side (A lasts {a.duration:.2f} s, {a.num_frames} "
+                         f"frames; B {b.duration:.2f} s); accepted: {span}")
     x = torch.cat((pa.x[:t], pb.x[t:]))
     weights = torch.ones(len(x))
     weights[max(0, t - blend_frames):t + blend_frames] = 0.0
@@ -360,6 +364,7 @@ class LatentTask:
     def __post_init__(self) -> None:
         if self.keep is not None:
             self.keep = check_ranges(list(self.keep), self.motion.num_frames)
+            require_a_gap(*self.output_ranges())
 
     @classmethod
     def completion(cls, motion: Motion, prefix: int, n_frames: int, prior: LatentPrior,
@@ -383,10 +388,7 @@ class LatentTask:
 
     def solve(self) -> LatentTaskResult:
         result = self._solved()
-        if self.judge_prior is None:
-            return result
-        ground = prepare(self.motion, self.judge_prior).start.ground
-        return judged(result, self.judge_prior, ground, Codec.of(self.judge_prior).model_motion(result.motion))
+        return result if self.judge_prior is None else judged_under(result, self.judge_prior, self.motion)
 
     def _solved(self) -> LatentTaskResult:
         if self.keep is None:

@@ -22,22 +22,31 @@ def parse_ranges(text: str) -> list[tuple[int, int | None]]:
     return out
 
 
+def _written(a: int, b: int | None) -> str:
+    """A range as the user wrote it (an open stop stays open)."""
+    return f"{a}:" if b is None else f"{a}:{b}"
+
+
 def check_ranges(ranges: list[tuple[int, int | None]], n_frames: int) -> list[tuple[int, int]]:
     """Sorted, validated ranges, a stop of None made the clip's end; errors name the
-    offending range."""
+    offending range as it was written."""
     if not ranges:
         raise ValueError("give at least one frame range to keep")
-    ranges = sorted((a, n_frames if b is None else b) for a, b in ranges)
     for a, b in ranges:
-        if not 0 <= a < b <= n_frames:
-            raise ValueError(f"keep range {a}:{b} is outside the clip's frames 0:{n_frames} or empty")
-    for (a0, b0), (a1, b1) in zip(ranges, ranges[1:]):
-        if a1 < b0:
-            raise ValueError(f"keep ranges {a0}:{b0} and {a1}:{b1} overlap")
-    if ranges[0][0] != 0:
-        raise ValueError(f"the first kept range starts at frame {ranges[0][0]}: keep frame 0, because the "
+        if a < 0 or (b is not None and b < 0):
+            raise ValueError(f"keep range {_written(a, b)} has a negative frame: frames count from 0 "
+                             f"(this clip's are 0:{n_frames}); counting back from the end is not read")
+        stop = n_frames if b is None else b
+        if not a < stop <= n_frames:
+            raise ValueError(f"keep range {_written(a, b)} is outside the clip's frames 0:{n_frames} or empty")
+    written = sorted(ranges, key=lambda r: r[0])
+    for (a0, b0), (a1, b1) in zip(written, written[1:]):
+        if a1 < (n_frames if b0 is None else b0):
+            raise ValueError(f"keep ranges {_written(a0, b0)} and {_written(a1, b1)} overlap")
+    if written[0][0] != 0:
+        raise ValueError(f"the first kept range starts at frame {written[0][0]}: keep frame 0, because the "
                          "prior synthesises forward in time from what comes before")
-    return ranges
+    return [(a, n_frames if b is None else b) for a, b in written]
 
 
 #: What ``Inbetween`` may do with the frames after the last kept range (``after``).
@@ -54,6 +63,13 @@ def after_last_range(keep: list[tuple[int, int]], n_frames: int, after: str) -> 
     if after == "keep":
         return [*keep[:-1], (keep[-1][0], n_frames)], n_frames
     return keep, (keep[-1][1] if after == "drop" else n_frames)
+
+
+def require_a_gap(keep: list[tuple[int, int]], n_frames: int) -> None:
+    """Refuse ranges that keep every one of the output's ``n_frames``: nothing would be filled."""
+    if not (~kept_mask(keep, n_frames)).any():
+        raise ValueError(f"the kept ranges cover every frame of the output (0:{n_frames}): nothing to fill; "
+                         "leave a gap between two ranges")
 
 
 def kept_mask(ranges: list[tuple[int, int]], n_frames: int) -> np.ndarray:

@@ -84,6 +84,13 @@ def test_score_text_output(capsys, ckpt):
     assert "  frames 0:120 (0.0-1.0 s)" in out
 
 
+def test_score_heading_gives_whole_seconds_at_ntsc_rate(capsys, ckpt, tmp_path):
+    ntsc = tmp_path / "ntsc.bvh"
+    bvh.save(bvh.load(cmu_clips()[0]).resample(29.97), ntsc)
+    rc, out, _ = run(capsys, "score", ntsc, "--prior", ckpt)
+    assert rc == 0 and "\nleast natural 1 s stretches" in out, out
+
+
 def test_score_refuses_a_skeleton_the_prior_does_not_model(capsys, ckpt, tmp_path):
     legless = tmp_path / "legless.bvh"
     bvh.save(bvh.load(cmu_clips()[0]).remove_joints(["lThigh", "lShin", "lFoot"]), legless)

@@ -332,6 +332,10 @@ INVALID = [
     ("keep range outside the clip", ("inbetween", "martial", "--keep", "0:30,100:200"), "100:200"),
     ("overlapping keep ranges", ("inbetween", "martial", "--keep", "0:30,20:60"), "overlap"),
     ("keep range not like a slice", ("inbetween", "martial", "--keep", "0-30"), "START:STOP"),
+    ("keep range with a negative frame", ("inbetween", "martial", "--keep=-5:30"), "frames count from 0"),
+    ("keep ranges that leave no gap", ("inbetween", "martial", "--keep", ":"), "nothing to fill"),
+    ("latent keep ranges that leave no gap", ("inbetween", "martial", "--keep", "0:30,30:", "--method", "latent"),
+     "nothing to fill"),
     ("prefix longer than the clip", ("complete", "salsa", "--prefix", "61", "--frames", "90"), "--prefix 61"),
     ("frames not after the prefix", ("complete", "salsa", "--prefix", "30", "--frames", "20"), "--frames 20"),
     ("target joint not in the skeleton", ("edit", "walk", "--targets", "{nose}"), "'Nose'"),
@@ -344,7 +348,7 @@ INVALID = [
                                             "--latent-seed", "none"), "--latent-seed"),
     ("latent seed of the wrong kind", ("inbetween", "martial", "--keep", "0:30,60:90", "--latent-seed", "{cmu}"),
      "latent"),
-    ("swarm off and on", ("inbetween", "martial", "--keep", "0:30", "--no-pso", "--pso-particles", "4"), "--no-pso"),
+    ("swarm off and on", ("inbetween", "martial", "--keep", "0:30,60:", "--no-pso", "--pso-particles", "4"), "--no-pso"),
     ("optimiser with latent", ("complete", "walk", "--prefix", "10", "--frames", "40", "--method", "latent",
                                "--optimizer", "nlopt"), "--method ar"),
     ("no iterations for the MAP solver", ("complete", "walk", "--prefix", "10", "--frames", "40", "--iterations", "0"),
@@ -389,6 +393,10 @@ def test_keep_ranges_read_like_python_slices():
         parse_ranges("0:30,60:x")
     with pytest.raises(ValueError, match="30:20 is outside"):
         check_ranges(parse_ranges("0:10,30:20"), 120)
+    with pytest.raises(ValueError, match="0:70 and 60: overlap"):   # quoted as written, the stop left open
+        check_ranges(parse_ranges("60:,0:70"), 120)
+    with pytest.raises(ValueError, match="keep range 130: is outside"):
+        check_ranges(parse_ranges("0:30,130:"), 120)
 
 
 def test_read_path_csv_columns_times_and_line_numbers(tmp_path):

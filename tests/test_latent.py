@@ -3,6 +3,7 @@ inversion, semantic directions and the latent commands, on tiny real runs."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -241,8 +242,14 @@ def test_fuse_output_keeps_the_file_layout(prior):
     r = fuse(prior, a, b, at=30)
     assert r.motion.skeleton.names == a.skeleton.names and r.motion.skeleton.channels == a.skeleton.channels
     assert r.motion.fps == a.fps and r.motion.source_unit == a.source_unit
-    with pytest.raises(ValueError, match="must fall inside"):
+    with pytest.raises(ValueError, match="must fall inside") as refused:
         fuse(prior, a, b, at=10_000)
+    first, last = map(int, re.search(r"accepted: frames (\d+)-(\d+) of A", str(refused.value)).groups())
+    assert 0 < first < 10 and first < last < a.num_frames
+    for at in (first - 1, last + 1):
+        with pytest.raises(ValueError, match="accepted: frames"):
+            fuse(prior, a, b, at=at)
+    assert fuse(prior, a, b, at=last).motion.num_frames > 0
 
 
 def test_fuse_keeps_each_part_beyond_the_seam_and_joins_them(prior):

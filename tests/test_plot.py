@@ -110,6 +110,12 @@ def test_filmstrip_of_given_frames_with_a_tilted_camera(martial, tmp_path):
     assert not (tmp_path / "bad.png").exists()
 
 
+def test_plot_help_gives_the_filmstrip_limit(capsys):
+    with pytest.raises(SystemExit):
+        main(["plot", "--help"])
+    assert f"at most {P.MAX_FILMSTRIP_FRAMES}" in " ".join(capsys.readouterr().out.split())
+
+
 def test_root_paths_against_a_target(walk, tmp_path):
     hips = walk.positions()[:, P.body_root(walk.skeleton)]
     target = hips[::10][:, [0, 2]] + [0.3, 0.0]

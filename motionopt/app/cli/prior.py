@@ -315,7 +315,7 @@ def cmd_score(args: argparse.Namespace) -> int:
               f"(lower is more natural; {report.frames} frames at {motion.fps:g} fps)")
         if report.worst:
             seconds = (report.worst[0][1] - report.worst[0][0]) / motion.fps
-            print(f"least natural {seconds:g} s stretches (frames as half-open ranges of the file's):")
+            print(f"least natural {seconds:.3g} s stretches (frames as half-open ranges of the file's):")
         for a, b, v in report.worst:
             print(f"  frames {a}:{b} ({a / motion.fps:.1f}-{b / motion.fps:.1f} s)  {v:.2f} nats per frame")
         if verdict:

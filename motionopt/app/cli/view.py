@@ -37,7 +37,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="PNG file to write")
     p.add_argument("--kind", choices=KINDS, default="filmstrip", help="which picture (default filmstrip)")
     p.add_argument("--joint", default=None, help="joint for --kind trajectory (default: the first foot joint)")
-    p.add_argument("--frames", type=int, default=6, help="stick figures per row for --kind filmstrip (default 6)")
+    p.add_argument("--frames", type=int, default=6, help="stick figures per row for --kind filmstrip (default 6, at most 30: "
+                   "motionopt view plays every frame)")
     p.add_argument("--elevation", type=float, default=0.0,
                    help="degrees the filmstrip camera looks down (default 0: side view)")
     _add_labelled_inputs_options(p, "picture title")
