@@ -190,6 +190,37 @@ def test_floored_root_height_lifts_a_sunken_body_onto_the_floor_and_leaves_a_sta
 
 
 @pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
+def test_settling_brings_a_floating_planted_foot_down_and_leaves_a_flight_in_the_air(path):
+    """With ``settle``, a frame lifted 5 cm comes back down when a contact joint is called
+    planted, to the lowest planted joint's rest (never a joint below its own rest); with
+    no joint planted (a run's flight) it stays up."""
+    _, spec, model, x, _ = encoded(path)
+    s = spec.slices()
+    frames = x[::40].clone()
+    heights = contact_heights(frames, spec, model.skeleton)
+    rest = heights.amin(-1, keepdim=True).expand(-1, len(spec.contact_joints)).clone()
+    frames[:, s["contacts"]] = 0.0
+    lowest = heights.argmin(-1)
+    frames[torch.arange(len(frames)), s["contacts"].start + lowest] = 1.0   # the lowest joint planted
+    lifted = frames.clone()
+    lifted[:, s["root_height"]] += 0.05
+    settled = floored_root_height(lifted, spec, model.skeleton, rest, settle=True)
+    assert torch.allclose(settled, frames, atol=1e-6)
+    assert torch.equal(floored_root_height(lifted, spec, model.skeleton, rest), lifted)  # raised only: stays up
+    flight = lifted.clone()
+    flight[:, s["contacts"]] = 0.0
+    assert torch.equal(floored_root_height(flight, spec, model.skeleton, rest, settle=True), flight)
+    # a planted joint higher than an unplanted one: lowered only until the unplanted one is at its rest
+    other = frames.clone()
+    other[:, s["contacts"]] = 0.0
+    highest = heights.argmax(-1)
+    other[torch.arange(len(frames)), s["contacts"].start + highest] = 1.0
+    other[:, s["root_height"]] += 0.05
+    down = floored_root_height(other, spec, model.skeleton, rest, settle=True)
+    assert torch.allclose(contact_heights(down, spec, model.skeleton).amin(-1), rest[:, 0], atol=1e-6)
+
+
+@pytest.mark.parametrize("path", [MARTIAL, BANDAI], ids=["cmu", "bandai"])
 def test_planted_root_step_holds_the_planted_joint_still(path):
     """A root step pushed off by 10 cm is replaced by the one that keeps the single
     planted contact joint still on the ground plane; unplanted frames keep theirs."""
