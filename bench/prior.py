@@ -53,7 +53,7 @@ import scipy.stats
 import torch
 from torch import Tensor
 
-from motionopt import metrics
+from motionopt import attributes, metrics
 from motionopt.dataset import MIRRORED, build_dataset
 from motionopt.codec import Codec
 from motionopt.features import advance
@@ -297,13 +297,12 @@ def segment_checks(prior, pos: Tensor, ground: float, ref: HumanRange) -> list[d
     for a in range(0, len(pos) - w + 1, w):
         seg = pos[a:a + w]
         hip = seg[:, 0, 1] - ground
-        low = seg[:, cidx, 1].min(-1).values - ground - ref.lowest_rest
         sk = float(metrics.foot_skating(seg, fps, cidx, ground=ground,
                                         rest=torch.full((len(cidx),), ref.lowest_rest, dtype=seg.dtype)))
         out.append({"hip5": float(hip.quantile(0.05)), "hip95": float(hip.quantile(0.95)),
                     "toe": toe_share(seg, cidx, ground + ref.lowest_rest), "skating": sk / ref.skating,
                     "speed": float(metrics.joint_speed(seg, fps).mean()) / ref.joint_speed,
-                    "root_speed": root_speed(seg, fps)})
+                    "root_speed": float(attributes.root_speed(seg[:, 0], fps))})
     return out
 
 
@@ -313,11 +312,6 @@ def toe_share(pos: Tensor, cidx: list[int], rest: float) -> float:
     return float(((pos[:, cidx, 1].min(-1).values - rest).abs() < 0.03).float().mean())
 
 
-def root_speed(pos: Tensor, fps: float) -> float:
-    """Mean horizontal speed (m/s) of the root joint of ``pos (T, J, 3)``."""
-    return float((pos[1:, 0, [0, 2]] - pos[:-1, 0, [0, 2]]).norm(dim=-1).mean() * fps)
-
-
 def data_toe_shares(prior, clips: list[Clip], ref: "HumanRange") -> str:
     """The toe check on the held-out clips themselves, whole clips, walks and runs apart
     (``RUN_SPEED``): what real motion of each pace gives."""
@@ -325,7 +319,7 @@ def data_toe_shares(prior, clips: list[Clip], ref: "HumanRange") -> str:
     shares = {"walk": [], "run": []}
     for c in clips:
         pos = torch.from_numpy(c.motion.positions())
-        pace = "run" if root_speed(pos, prior.spec.fps) > RUN_SPEED else "walk"
+        pace = "run" if float(attributes.root_speed(pos[:, 0], prior.spec.fps)) > RUN_SPEED else "walk"
         shares[pace].append(toe_share(pos, cidx, c.start.ground + ref.lowest_rest))
     return "; ".join(f"{len(v)} {k}s {min(v):.0%}-{max(v):.0%}" for k, v in shares.items() if v)
 

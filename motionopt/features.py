@@ -320,12 +320,12 @@ def floored_root_height(x: Tensor, spec: FeatureSpec, skeleton: Skeleton, rest: 
     cidx = spec.contact_indices()
     heights = decode_positions(x[..., None, :], spec, skeleton)[..., 0, cidx, 1]
     above = heights - (0.0 if rest is None else rest)
-    shift = above.amin(-1, keepdim=True).clamp_max(0.0)
+    lowest = above.amin(-1, keepdim=True)
+    shift = lowest.clamp_max(0.0)
     if settle:
         planted = x[..., spec.slices()["contacts"]] > 0.5
         lowest_planted = torch.where(planted, above, torch.inf).amin(-1, keepdim=True)
-        shift = torch.where(planted.any(-1, keepdim=True), torch.minimum(lowest_planted, above.amin(-1, keepdim=True)),
-                            shift)
+        shift = torch.where(planted.any(-1, keepdim=True), torch.minimum(lowest_planted, lowest), shift)
     out = x.clone()
     out[..., spec.slices()["root_height"]] -= shift
     return out

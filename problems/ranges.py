@@ -36,17 +36,17 @@ def check_ranges(ranges: list[tuple[int, int | None]], n_frames: int) -> list[tu
         if a < 0 or (b is not None and b < 0):
             raise ValueError(f"keep range {_written(a, b)} has a negative frame: frames count from 0 "
                              f"(this clip's are 0:{n_frames}); counting back from the end is not read")
-        stop = n_frames if b is None else b
-        if not a < stop <= n_frames:
+        if not a < (n_frames if b is None else b) <= n_frames:
             raise ValueError(f"keep range {_written(a, b)} is outside the clip's frames 0:{n_frames} or empty")
     written = sorted(ranges, key=lambda r: r[0])
-    for (a0, b0), (a1, b1) in zip(written, written[1:]):
-        if a1 < (n_frames if b0 is None else b0):
-            raise ValueError(f"keep ranges {_written(a0, b0)} and {_written(a1, b1)} overlap")
-    if written[0][0] != 0:
-        raise ValueError(f"the first kept range starts at frame {written[0][0]}: keep frame 0, because the "
+    resolved = [(a, n_frames if b is None else b) for a, b in written]
+    for k in range(1, len(written)):
+        if resolved[k][0] < resolved[k - 1][1]:
+            raise ValueError(f"keep ranges {_written(*written[k - 1])} and {_written(*written[k])} overlap")
+    if resolved[0][0] != 0:
+        raise ValueError(f"the first kept range starts at frame {resolved[0][0]}: keep frame 0, because the "
                          "prior synthesises forward in time from what comes before")
-    return [(a, n_frames if b is None else b) for a, b in written]
+    return resolved
 
 
 #: What ``Inbetween`` may do with the frames after the last kept range (``after``).
