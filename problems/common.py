@@ -314,15 +314,28 @@ def judged_under(result: Judged, judge_prior, original: Motion) -> Judged:
 
 
 def run(prior, prep: Prepared, x0: torch.Tensor, free: np.ndarray, terms: list[Term], options: SolverOptions,
-        prior_min_log_std: float | None = -2.5, other_starts: Sequence[torch.Tensor] = ()) -> tuple[MAPResult, Motion]:
+        prior_min_log_std: float | None = -2.5, other_starts: Sequence[torch.Tensor] = (),
+        keep_human: bool = False) -> tuple[MAPResult, Motion]:
     """Solve and decode to a model-skeleton Motion (continuing the input's root).
     ``prior_min_log_std``: see ``MAPObjective`` (None: the prior as trained).
     ``other_starts``: more starting features like ``x0``; the lowest objective's result
-    is kept (``solve_from``)."""
+    is kept (``solve_from``), with ``keep_human`` among those with the fewest seconds
+    outside the range of human motion (``seconds_out_of_range``)."""
     objective = MAPObjective(prior, prep.model.skeleton, terms, prior_min_log_std=prior_min_log_std)
-    result = solve_from(objective, [Problem(x, free, prep.start) for x in (x0, *other_starts)], options)
+    faults = (lambda r: seconds_out_of_range(prior, prep, r.x)) if keep_human else None
+    result = solve_from(objective, [Problem(x, free, prep.start) for x in (x0, *other_starts)], options, faults)
     # frame 0 keeps its zero deltas, so decoding from the input's start reproduces its root
     return result, prep.codec.motion(result.x.double(), prep.start, like=prep.original)
+
+
+def seconds_out_of_range(prior, prep: Prepared, x: torch.Tensor) -> int:
+    """How many seconds of the motion of features ``x`` leave the held-out data's range of
+    human motion stored with ``prior`` in any measure (``naturalness.out_of_range``; 0 for
+    a prior without a range)."""
+    model = prep.codec.motion(x.double(), prep.start, like=prep.original)
+    seconds = naturalness.per_second(prior, model, prep.start.ground)
+    out = naturalness.out_of_range(seconds, naturalness.HumanRange.of_prior(prior))
+    return len({s for found in out.values() for s in found})
 
 
 def model_frames_in(ranges: list[tuple[int, int]], original_fps: float, model_fps: float, n_model: int) -> np.ndarray:

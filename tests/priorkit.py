@@ -76,3 +76,10 @@ def features(path: Path, prior: CCNetPrior | None = None) -> torch.Tensor:
     from priors.score import checked_features
 
     return checked_features(prior or tiny_prior(), bvh.load(path))
+
+def assert_kept_the_best_sound_start(solver) -> None:
+    """``solver`` (a ``MAPResult`` of several starts) kept the lowest objective among the
+    starts with the fewest seconds outside the range of human motion."""
+    faults = solver.starts_faults
+    assert len(faults) == len(solver.starts_fun)
+    assert solver.fun == min(f for f, n in zip(solver.starts_fun, faults) if n == min(faults))

@@ -346,6 +346,8 @@ INVALID = [
     ("unknown optimiser", ("denoise", "walk", "--optimizer", "bfgs"), "scipy, nlopt, torch, adam"),
     ("latent seed with the latent method", ("inbetween", "martial", "--keep", "0:30,60:90", "--method", "latent",
                                             "--latent-seed", "none"), "--latent-seed"),
+    ("latent seed with latent completion", ("complete", "salsa", "--prefix", "30", "--frames", "60", "--method",
+                                            "latent", "--latent-seed", "none"), "--latent-seed"),
     ("latent seed of the wrong kind", ("inbetween", "martial", "--keep", "0:30,60:90", "--latent-seed", "{cmu}"),
      "latent"),
     ("swarm off and on", ("inbetween", "martial", "--keep", "0:30,60:", "--no-pso", "--pso-particles", "4"), "--no-pso"),

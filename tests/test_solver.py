@@ -103,7 +103,8 @@ def test_options_are_checked():
 
 def test_solve_from_keeps_the_lowest_objective_of_its_starts():
     """``solve_from`` solves from each start as ``solve`` does and keeps the lowest final
-    objective; starts of different sequences are refused."""
+    objective, or with ``faults`` the lowest among the results of fewest faults; starts of
+    different sequences are refused."""
     prior = tiny_prior()
     objective, problem, _ = denoise(prior, cmu_clips()[0], 40)
     noisy = problem.x0 + 0.5 * torch.randn(problem.x0.shape, generator=torch.Generator().manual_seed(3))
@@ -113,7 +114,11 @@ def test_solve_from_keeps_the_lowest_objective_of_its_starts():
     best = S.solve_from(objective, starts, opts)
     assert best.starts_fun == pytest.approx([r.fun for r in alone])
     assert best.fun == min(best.starts_fun) and alone[1].fun < alone[0].fun
-    assert torch.equal(best.x, alone[1].x)
+    assert torch.equal(best.x, alone[1].x) and best.starts_faults == []
+    # a fault the objective does not see (here: the lower objective itself) outranks the objective
+    threshold = (alone[0].fun + alone[1].fun) / 2
+    sound = S.solve_from(objective, starts, opts, faults=lambda r: int(r.fun < threshold))
+    assert sound.starts_faults == [0, 1] and torch.equal(sound.x, alone[0].x) and sound.fun == alone[0].fun
     with pytest.raises(ValueError, match="free frames"):
         S.solve_from(objective, [problem, Problem(problem.x0, ~problem.free, problem.start)], opts)
 

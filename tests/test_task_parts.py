@@ -17,7 +17,7 @@ from problems.denoise import estimate_noise, low_pass
 from problems.edit import reach
 from problems.inbetween import velocity_handoff
 
-from priorkit import cmu_clips, tiny_prior
+from priorkit import assert_kept_the_best_sound_start, cmu_clips, tiny_prior
 from clips import CMU_120, DATA
 
 
@@ -314,8 +314,9 @@ def test_the_foot_ik_plants_only_feet_near_their_planted_height():
 
 def test_completion_solves_from_several_rollouts_and_keeps_the_lowest_objective():
     """Prefix completion starts its solve from COMPLETION_ROLLOUT_STARTS rollouts of
-    different noise and keeps the lowest objective: never above the solve from the first
-    rollout alone, and the prefix is the input's."""
+    different noise and keeps the lowest objective among the results with the fewest
+    seconds outside the range of human motion: never above the solve from the first
+    rollout alone unless that one has more, and the prefix is the input's."""
     from problems.inbetween import COMPLETION_ROLLOUT_STARTS, complete
 
     prior = tiny_prior()
@@ -324,8 +325,11 @@ def test_completion_solves_from_several_rollouts_and_keeps_the_lowest_objective(
     many = complete(clip, 60, 150, prior).solve()
     assert len(many.solver.starts_fun) == COMPLETION_ROLLOUT_STARTS > 1
     assert many.solver.starts_fun[0] == pytest.approx(one.solver.fun)
-    assert many.solver.fun == min(many.solver.starts_fun) <= one.solver.fun
+    assert_kept_the_best_sound_start(many.solver)
+    faults = many.solver.starts_faults
+    assert many.solver.fun <= one.solver.fun or min(faults) < faults[0]
     assert np.array_equal(many.motion.rotations[:60], clip.rotations[:60])
     assert len(set(np.round(many.solver.starts_fun, 3))) == COMPLETION_ROLLOUT_STARTS  # the rollouts differ
     with pytest.raises(ValueError, match="rollout_starts"):
         complete(clip, 60, 150, prior, rollout_starts=0)
+

@@ -13,7 +13,7 @@ import logging
 import math
 import time
 from dataclasses import replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -47,13 +47,18 @@ def solve(objective: MAPObjective, problem: Problem, options: SolverOptions = So
             torch.set_flush_denormal(False)
 
 
-def solve_from(objective: MAPObjective, problems: Sequence[Problem], options: SolverOptions = SolverOptions()
-               ) -> MAPResult:
+def solve_from(objective: MAPObjective, problems: Sequence[Problem], options: SolverOptions = SolverOptions(),
+               faults: Callable[[MAPResult], int] | None = None) -> MAPResult:
     """``solve`` from each of ``problems`` (one sequence: the same free frames and root
     start, different starting features) and the result of the lowest objective, with
     every start's final objective in ``MAPResult.starts_fun``. The local optimiser stays
     in the basin it starts in; seeds that differ in kind (an autoregressive rollout, a
-    masked encoder's fill) reach basins that one of them alone does not."""
+    masked encoder's fill) reach basins that one of them alone does not.
+
+    ``faults`` counts what is wrong with a result that the objective does not see (a
+    task's seconds outside the range of human motion): the lowest objective is then kept
+    among the results of fewest faults, and every start's count is in
+    ``MAPResult.starts_faults``."""
     if not problems:
         raise ValueError("solve_from needs at least one start")
     first = problems[0]
@@ -61,9 +66,10 @@ def solve_from(objective: MAPObjective, problems: Sequence[Problem], options: So
         if p.x0.shape != first.x0.shape or not np.array_equal(p.free, first.free) or p.start != first.start:
             raise ValueError("the starts of solve_from must share the sequence's shape, free frames and root start")
     results = [solve(objective, p, options) for p in problems]
-    best = min(results, key=lambda r: r.fun)
-    timings = {k: sum(r.timings[k] for r in results) for k in best.timings}  # the work of every start
-    return replace(best, timings=timings, starts_fun=[r.fun for r in results])
+    counts = [faults(r) for r in results] if faults is not None and len(results) > 1 else []
+    best = min(range(len(results)), key=lambda i: (counts[i] if counts else 0, results[i].fun))
+    timings = {k: sum(r.timings[k] for r in results) for k in results[best].timings}  # the work of every start
+    return replace(results[best], timings=timings, starts_fun=[r.fun for r in results], starts_faults=counts)
 
 
 def _solve(objective: MAPObjective, problem: Problem, opts: SolverOptions) -> MAPResult:

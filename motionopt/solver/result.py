@@ -44,8 +44,11 @@ class MAPResult:
                                     # scoring windows, within objective), total
     windows: list[dict]
     seam: dict[str, float] = field(default_factory=dict)
-    #: With several starts (``solve_from``): each start's final objective, in order; ``x`` is the lowest's.
+    #: With several starts (``solve_from``): each start's final objective, in order; ``x`` is the lowest's
+    #: among the starts of fewest ``starts_faults``.
     starts_fun: list[float] = field(default_factory=list)
+    #: With several starts and a ``faults`` count (``solve_from``): each start's result's faults, in order.
+    starts_faults: list[int] = field(default_factory=list)
 
     def __getitem__(self, key: str):
         return getattr(self, key)

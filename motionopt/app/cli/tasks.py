@@ -281,13 +281,18 @@ def _latent_density(prior):
 
 def _latent_inbetween(args: argparse.Namespace, keep: list[tuple[int, int]], motion: Motion, prior):
     """In-betweening with the latent prior, --after applied as the autoregressive task applies it."""
-    if args.latent_seed is not None:
-        raise UserError("--latent-seed seeds the autoregressive solve: drop --latent-seed, or drop --method latent")
+    _refuse_latent_seed(args)
     problems = _problems()
     ranges, length = problems.ranges.after_last_range(keep, motion.num_frames, args.after)
     return _latent_refined(args, problems.latent.LatentTask(motion[:length], prior, ranges,
                                                             problems.latent.gap_inversion_options(),
                                                             judge_prior=judging_prior(motion)))
+
+
+def _refuse_latent_seed(args: argparse.Namespace) -> None:
+    """--latent-seed belongs to the autoregressive solve, not to --method latent."""
+    if args.latent_seed is not None:
+        raise UserError("--latent-seed seeds the autoregressive solve: drop --latent-seed, or drop --method latent")
 
 
 def _latent_refined(args: argparse.Namespace, task):
@@ -304,10 +309,11 @@ CLEAN_FEET = arg("--clean-feet", action=argparse.BooleanOptionalAction, default=
 
 LATENT_SEED = arg("--latent-seed", metavar="CKPT", default=None,
                   help="a latent prior (a file or a shipped checkpoint's name) whose masked encoder also seeds the "
-                  "solve of gaps of at least 0.3 s: the solve starts from its fills and from the rollouts and keeps "
-                  "the lowest objective (30-frame gaps of held-out clips: 18-32%% lower position error, 6 times "
-                  "slower; the README gives figures). Default: the shipped latent prior of the skeleton, if any; "
-                  "'none': the rollouts alone")
+                  "solve (in-betweening: of gaps of at least 0.3 s; completion: its continuation, settled under the "
+                  "autoregressive prior): the solve starts from its fills and from the rollouts and keeps the lowest "
+                  "objective of the results with the fewest seconds outside the range of human motion (held-out "
+                  "clips: 18-32%% lower position error in 30-frame gaps, 6 times slower; the README gives figures). "
+                  "Default: the shipped latent prior of the skeleton, if any; 'none': the rollouts alone")
 
 
 def _latent_seed(args: argparse.Namespace, motion: Motion):
@@ -360,6 +366,7 @@ def judging_prior(motion: Motion):
 def _latent_completion(args: argparse.Namespace, motion: Motion, prior):
     """``complete --method latent``: settled under the autoregressive prior (--settle-prior,
     --no-settle), and judged under it or, unsettled, under the skeleton's shipped one."""
+    _refuse_latent_seed(args)
     settler = settle_prior(args, motion)
     return _latent_refined(args, _problems().latent.LatentTask.completion(
         motion, args.prefix, args.frames, prior, settle_prior=settler,
@@ -372,7 +379,7 @@ def _autoregressive_completion(args: argparse.Namespace, motion: Motion, prior):
         raise UserError("--settle-prior and --no-settle settle --method latent's completion; drop them or add "
                         "--method latent")
     return _problems().inbetween.complete(motion, args.prefix, args.frames, prior, refine=args.refine is not False,
-                                          clean_feet=args.clean_feet is not False)
+                                          clean_feet=args.clean_feet is not False, latent=_latent_seed(args, motion))
 
 
 #: The task commands by name, in the order ``motionopt --help`` lists them.
@@ -451,8 +458,9 @@ TASKS: dict[str, TaskEntry] = {
     "complete": TaskEntry(
         help="continue the first frames of a motion (prefix completion)",
         description="Keep the first --prefix frames of INPUT.bvh and synthesise new motion after them, up to "
-        "--frames frames in all (both in INPUT.bvh's frame rate): three rollouts of the prior, each then solved with "
-        "the MAP solver, the lowest objective kept (--no-refine: the first rollout alone). With --method latent: "
+        "--frames frames in all (both in INPUT.bvh's frame rate): three rollouts of the prior and the latent prior's "
+        "continuation (--latent-seed), each then solved with the MAP solver, the lowest objective of those that stay "
+        "in the range of human motion kept (--no-refine: the first rollout alone). With --method latent: "
         "the masked encoder's continuation, solved under the latent prior, then settled under the autoregressive "
         "prior with the prefix held (--no-settle: not settled). --plot draws a filmstrip of output and input.",
         arguments=(
@@ -460,7 +468,8 @@ TASKS: dict[str, TaskEntry] = {
             arg("--prefix", required=True, type=positive(int), metavar="N", help="frames to keep"),
             arg("--frames", required=True, type=positive(int), metavar="N",
                 help="frames of the output, prefix included"),
-            CLEAN_FEET, *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
+            CLEAN_FEET, LATENT_SEED,
+            *settle_args("the frames --method latent makes after the prefix (the prefix is held)")),
         build=lambda a, _, motion, prior: _autoregressive_completion(a, motion, prior),
         latent=lambda a, _, motion, prior: _latent_completion(a, motion, prior)),
     "edit": TaskEntry(
