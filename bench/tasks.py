@@ -32,7 +32,9 @@ clips shorter than a section needs are left out of it.
    held-out clip: MPJPE to the real
    continuation against zero-velocity (last frame held) and constant-velocity (root
    velocity and per-joint angular velocity of the last frame kept) extrapolation; prior
-   NLL per frame of the completion and of the real continuation.
+   NLL per frame of the completion and of the real continuation. Ours as ``complete``
+   runs it (its solve also seeded by the shipped latent prior's continuation), with the
+   rollouts alone (``--latent-seed none``) and with ``--method latent``.
 5. Spatial edits: hand and foot targets moved 10-20 cm at single frames and ranges:
    target error and the change of frames more than the falloff away from any target.
 
@@ -451,29 +453,45 @@ COMPLETION_EVERY_S = 2
 
 
 def bench_complete(prior, clips: list[tuple[str, Motion]]) -> list[str]:
+    """Prefix completion over 1 s: ours as ``complete`` runs it (seeded also by the latent
+    prior's continuation where a latent prior ships for the skeleton) and, with such a
+    prior, seeded by the rollouts alone (``--latent-seed none``) and ``--method latent``."""
     fps = int(prior.spec.fps)
     prefix, n = fps, fps
     latent = latent_for(clips)
-    res = {"zero velocity": [], "constant velocity": [], "ours": []} | ({"ours, --method latent": []} if latent else {})
+    res = {"zero velocity": [], "constant velocity": [], "ours": []} | (
+        {"ours, --latent-seed none": [], "ours, --method latent": []} if latent else {})
     nll_ours, nll_real = [], []
+    secs = dict.fromkeys(res, 0.0)
     cases = [(name, m[s:s + prefix + n]) for name, m in clips
              for s in range(0, m.num_frames - prefix - n + 1, COMPLETION_EVERY_S * fps)]
+
+    def timed(label: str, make: Callable[[], object]) -> tuple[str, object]:
+        t0 = time.perf_counter()
+        out = make()
+        secs[label] += time.perf_counter() - t0
+        return label, out
+
     for _, real in cases:
-        r = complete(real[:prefix], prefix, prefix + n, prior).solve()
-        p_real = real.positions()[prefix:]
-        outs = [("zero velocity", extrapolate(real[:prefix], n, False)),
-                ("constant velocity", extrapolate(real[:prefix], n, True)), ("ours", r.model_motion)]
+        start = real[:prefix]
+        r = timed("ours", lambda: complete(start, prefix, prefix + n, prior, latent=latent).solve())[1]
+        outs = [("zero velocity", extrapolate(start, n, False)), ("constant velocity", extrapolate(start, n, True)),
+                ("ours", r.model_motion)]
         if latent:
-            made = latent_completion(real[:prefix], prefix, prefix + n, latent, prior)
-            outs.append(("ours, --method latent", prepare(made, prior).model))
+            outs += [timed("ours, --latent-seed none",
+                           lambda: complete(start, prefix, prefix + n, prior).solve().model_motion),
+                     timed("ours, --method latent",
+                           lambda: prepare(latent_completion(start, prefix, prefix + n, latent, prior), prior).model)]
+        p_real = real.positions()[prefix:]
         for label, out in outs:
             res[label].append(np.linalg.norm(out.positions()[prefix:prefix + n] - p_real, axis=-1).mean() * 100)
         nll_ours.append(continuation_nll(prior, r.model_motion, prefix))
         nll_real.append(continuation_nll(prior, real, prefix))
-    rows = [[label, len(v), float(np.mean(v))] for label, v in res.items()]
+    rows = [[label, len(v), float(np.mean(v)), f"{secs[label] / len(v):.1f}" if secs[label] else ""]
+            for label, v in res.items()]
     lines = [f"4. Prefix completion (1 s prefix, 1 s continuation, from every {COMPLETION_EVERY_S} s of "
              f"{len({c[0] for c in cases})} held-out clips: {len(cases)} cases)"]
-    lines += format_table(["method", "clips", "MPJPE cm"], rows)
+    lines += format_table(["method", "clips", "MPJPE cm", "s/case"], rows)
     lines.append(f"   prior NLL per frame of the continuation (lower is more likely): ours {np.mean(nll_ours):.1f}, "
                  f"real {np.mean(nll_real):.1f}")
     return lines
@@ -489,10 +507,11 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
     fps = int(prior.spec.fps)
     measures = ("hips", "floating", "skating", "unlikely")
     rows, inside, total = [], dict.fromkeys(measures + ("all",), 0), 0
+    latent = latent_for(clips)
     for name, m in clips:
         if m.num_frames < fps:
             continue
-        r = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior).solve()
+        r = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior, latent=latent).solve()
         new = r.per_second[1:1 + LONG_COMPLETION_S]
         out = out_of_range(new, r.human_range)
         bad = sorted({s for k in measures for s in out[k]})
@@ -509,20 +528,22 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
                           rows)
     lines.append(f"   of {total} seconds: " + ", ".join(f"{k} {inside[k]}" for k in measures) +
                  f"; all four {inside['all']}")
-    latent = latent_for(clips)
     if latent:
-        known, inside_latent, total_latent = HumanRange.of_prior(prior), 0, 0
+        known, inside_latent, inside_alone, total_latent = HumanRange.of_prior(prior), 0, 0, 0
         for name, m in clips:
             if m.num_frames < fps:
                 continue
+            alone = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior).solve()
+            new = alone.per_second[1:1 + LONG_COMPLETION_S]
+            inside_alone += len(new) - len({s for found in out_of_range(new, known).values() for s in found})
             out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent, prior)
             ground = prepare(m[:fps], prior).start.ground
             new = per_second(prior, prepare(out, prior).model, ground)[1:1 + LONG_COMPLETION_S]
             out_range = out_of_range(new, known)
             inside_latent += len(new) - len({s for k in measures for s in out_range[k]})
             total_latent += len(new)
-        lines.append(f"   complete --method latent (the same cases, judged the same way): all four in range in "
-                     f"{inside_latent} of {total_latent} seconds")
+        lines.append(f"   the same cases, judged the same way, all four in range: --latent-seed none (the rollouts alone) "
+                     f"{inside_alone} of {total_latent} seconds, complete --method latent {inside_latent}")
     return lines
 
 

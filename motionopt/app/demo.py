@@ -168,7 +168,8 @@ def run_demo(out_dir: str | Path, force: bool = False, fast: bool = False,
     # 4. Completion: the walk's first second continued for two more (Bandai prior).
     t0 = time.perf_counter()
     progress("completion: continuing the first second of the walk")
-    res = complete(walk, 30, 90, walk_prior).solve()
+    res = complete(walk, 30, 90, walk_prior,
+                   latent=load_prior_cached(CHECKPOINT_DIR / "bandai-latent.pt")).solve()   # as `complete` seeds it
     bvh.save(res.motion, out / "complete.bvh", force=True)
     plot.plot_filmstrip({"input": walk, "completed": res.motion}, out / "complete.png", frames=6, force=True,
                         title="Completion: frames 30-89 synthesised after the first second")
