@@ -62,7 +62,7 @@ from motionopt.codec import Codec  # noqa: E402
 from motionopt.kinematics import fk  # noqa: E402
 from motionopt.metrics import foot_skating, jerk, l2p, l2q, npss, rest_heights  # noqa: E402
 from motionopt.motion import Motion  # noqa: E402
-from motionopt.naturalness import HumanRange, out_of_range, per_second, spans  # noqa: E402
+from motionopt.naturalness import HumanRange, flagged_seconds, out_of_range, per_second, spans  # noqa: E402
 from motionopt.noise import glitch, position_noise  # noqa: E402
 from motionopt.table import format_table  # noqa: E402
 from motionopt.solver import Problem, SolverOptions  # noqa: E402
@@ -514,7 +514,7 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
         r = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior, latent=latent).solve()
         new = r.per_second[1:1 + LONG_COMPLETION_S]
         out = out_of_range(new, r.human_range)
-        bad = sorted({s for k in measures for s in out[k]})
+        bad = flagged_seconds(new, r.human_range)
         for k in measures:
             inside[k] += len(new) - len(out[k])
         inside["all"] += len(new) - len(bad)
@@ -535,12 +535,11 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
                 continue
             alone = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior).solve()
             new = alone.per_second[1:1 + LONG_COMPLETION_S]
-            inside_alone += len(new) - len({s for found in out_of_range(new, known).values() for s in found})
+            inside_alone += len(new) - len(flagged_seconds(new, known))
             out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent, prior)
             ground = prepare(m[:fps], prior).start.ground
             new = per_second(prior, prepare(out, prior).model, ground)[1:1 + LONG_COMPLETION_S]
-            out_range = out_of_range(new, known)
-            inside_latent += len(new) - len({s for k in measures for s in out_range[k]})
+            inside_latent += len(new) - len(flagged_seconds(new, known))
             total_latent += len(new)
         lines.append(f"   the same cases, judged the same way, all four in range: --latent-seed none (the rollouts alone) "
                      f"{inside_alone} of {total_latent} seconds, complete --method latent {inside_latent}")

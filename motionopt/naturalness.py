@@ -117,6 +117,11 @@ WHAT = {"hips": "hip height", "floating": "the lowest foot joint's height above 
         "skating": "foot sliding", "unlikely": "the prior's NLL"}
 
 
+def flagged_seconds(seconds: list[dict], known: HumanRange | None) -> list[float]:
+    """The starts of the seconds where any measure leaves ``known`` (``out_of_range``), in order."""
+    return sorted({s for found in out_of_range(seconds, known).values() for s in found})
+
+
 def spans(starts: list[float]) -> str:
     """'0-3, 7' for seconds starting at 0, 1, 2, 3 and 7."""
     whole = sorted(int(round(s)) for s in starts)
@@ -145,7 +150,7 @@ def summary_line(seconds: list[dict], known: HumanRange | None) -> str:
         return (f"naturalness per second: {len(seconds)} seconds measured (in the report); the prior's checkpoint "
                 "carries no data range to judge them against")
     bad = out_of_range(seconds, known)
-    flagged = sorted({s for v in bad.values() for s in v})
+    flagged = flagged_seconds(seconds, known)
     if not flagged:
         return f"naturalness per second: all {len(seconds)} seconds within the held-out data's range"
     return (f"naturalness per second: {len(seconds) - len(flagged)} of {len(seconds)} seconds within the held-out "

@@ -7,7 +7,7 @@ import pytest
 
 from motionopt import bvh
 from motionopt.features import to_model_motion
-from motionopt.naturalness import HumanRange, out_of_range, per_second, spans, summary_line, warnings_for
+from motionopt.naturalness import HumanRange, flagged_seconds, out_of_range, per_second, spans, summary_line, warnings_for
 from priors.checkpoint import CHECKPOINT_DIR, load_prior_cached
 
 from clips import BANDAI_30, DATA, shared_excerpt
@@ -39,6 +39,8 @@ def test_a_held_out_walk_stays_in_range_and_a_lifted_one_is_named_by_its_seconds
     seconds = per_second(prior, walk.with_frames(walk.rotations, lifted, None), ground)
     bad = out_of_range(seconds, known)
     assert bad["hips"] == [2.0, 3.0] and bad["floating"] == [2.0, 3.0]
+    assert flagged_seconds(seconds, known) == sorted({s for found in bad.values() for s in found})
+    assert {2.0, 3.0} <= set(flagged_seconds(seconds, known)) and flagged_seconds(seconds, None) == []
     text = warnings_for(seconds, known)
     assert any(w.startswith("output: hip height leaves") and w.endswith("in seconds 2-3 (of seconds 0-5)")
                for w in text)
