@@ -617,7 +617,7 @@ def naturalness_row(prior, ar, label: str, outs: list[Motion], score_motion, spr
         known, good, total = naturalness.HumanRange.of_prior(ar), 0, 0
         for m, p in zip(models, pos):
             seconds = naturalness.per_second(ar, m, estimate_ground(p.numpy(), cidx))
-            flagged = naturalness.flagged_seconds(seconds, known)
+            flagged = naturalness.flagged_seconds(naturalness.out_of_range(seconds, known))
             good, total = good + len(seconds) - len(flagged), total + len(seconds)
         in_range = f"{good} of {total}"
     return [label, spread_cm, nll, f"{np.mean([float(jerk(p, fps)) for p in pos]):.0f}",

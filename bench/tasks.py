@@ -514,7 +514,7 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
         r = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior, latent=latent).solve()
         new = r.per_second[1:1 + LONG_COMPLETION_S]
         out = out_of_range(new, r.human_range)
-        bad = flagged_seconds(new, r.human_range)
+        bad = flagged_seconds(out)
         for k in measures:
             inside[k] += len(new) - len(out[k])
         inside["all"] += len(new) - len(bad)
@@ -535,11 +535,11 @@ def bench_complete_long(prior, clips: list[tuple[str, Motion]]) -> list[str]:
                 continue
             alone = complete(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), prior).solve()
             new = alone.per_second[1:1 + LONG_COMPLETION_S]
-            inside_alone += len(new) - len(flagged_seconds(new, known))
+            inside_alone += len(new) - len(flagged_seconds(out_of_range(new, known)))
             out = latent_completion(m[:fps], fps, fps * (1 + LONG_COMPLETION_S), latent, prior)
             ground = prepare(m[:fps], prior).start.ground
             new = per_second(prior, prepare(out, prior).model, ground)[1:1 + LONG_COMPLETION_S]
-            inside_latent += len(new) - len(flagged_seconds(new, known))
+            inside_latent += len(new) - len(flagged_seconds(out_of_range(new, known)))
             total_latent += len(new)
         lines.append(f"   the same cases, judged the same way, all four in range: --latent-seed none (the rollouts alone) "
                      f"{inside_alone} of {total_latent} seconds, complete --method latent {inside_latent}")

@@ -117,9 +117,10 @@ WHAT = {"hips": "hip height", "floating": "the lowest foot joint's height above 
         "skating": "foot sliding", "unlikely": "the prior's NLL"}
 
 
-def flagged_seconds(seconds: list[dict], known: HumanRange | None) -> list[float]:
-    """The starts of the seconds where any measure leaves ``known`` (``out_of_range``), in order."""
-    return sorted({s for found in out_of_range(seconds, known).values() for s in found})
+def flagged_seconds(out: dict[str, list[float]]) -> list[float]:
+    """The starts of the seconds where any measure of ``out`` (``out_of_range``'s result)
+    leaves the range, in order."""
+    return sorted({s for found in out.values() for s in found})
 
 
 def spans(starts: list[float]) -> str:
@@ -150,7 +151,7 @@ def summary_line(seconds: list[dict], known: HumanRange | None) -> str:
         return (f"naturalness per second: {len(seconds)} seconds measured (in the report); the prior's checkpoint "
                 "carries no data range to judge them against")
     bad = out_of_range(seconds, known)
-    flagged = flagged_seconds(seconds, known)
+    flagged = flagged_seconds(bad)
     if not flagged:
         return f"naturalness per second: all {len(seconds)} seconds within the held-out data's range"
     return (f"naturalness per second: {len(seconds) - len(flagged)} of {len(seconds)} seconds within the held-out "

@@ -334,7 +334,7 @@ def seconds_out_of_range(prior, prep: Prepared, x: torch.Tensor) -> int:
     a prior without a range)."""
     model = prep.codec.motion(x.double(), prep.start, like=prep.original)
     seconds = naturalness.per_second(prior, model, prep.start.ground)
-    return len(naturalness.flagged_seconds(seconds, naturalness.HumanRange.of_prior(prior)))
+    return len(naturalness.flagged_seconds(naturalness.out_of_range(seconds, naturalness.HumanRange.of_prior(prior))))
 
 
 def model_frames_in(ranges: list[tuple[int, int]], original_fps: float, model_fps: float, n_model: int) -> np.ndarray:

@@ -39,8 +39,8 @@ def test_a_held_out_walk_stays_in_range_and_a_lifted_one_is_named_by_its_seconds
     seconds = per_second(prior, walk.with_frames(walk.rotations, lifted, None), ground)
     bad = out_of_range(seconds, known)
     assert bad["hips"] == [2.0, 3.0] and bad["floating"] == [2.0, 3.0]
-    assert flagged_seconds(seconds, known) == sorted({s for found in bad.values() for s in found})
-    assert {2.0, 3.0} <= set(flagged_seconds(seconds, known)) and flagged_seconds(seconds, None) == []
+    assert flagged_seconds(bad) == sorted({s for found in bad.values() for s in found})
+    assert {2.0, 3.0} <= set(flagged_seconds(bad)) and flagged_seconds(out_of_range(seconds, None)) == []
     text = warnings_for(seconds, known)
     assert any(w.startswith("output: hip height leaves") and w.endswith("in seconds 2-3 (of seconds 0-5)")
                for w in text)

@@ -317,13 +317,14 @@ LATENT_SEED = arg("--latent-seed", metavar="CKPT", default=None,
 
 
 def _latent_seed(args: argparse.Namespace, motion: Motion):
-    """The latent prior whose fills seed in-betweening's solve (--latent-seed), or None."""
+    """The latent prior whose fills seed in-betweening's or completion's solve (--latent-seed), or None."""
     from priors.checkpoint import CheckpointError, load_prior_of_kind
 
     if args.latent_seed == "none" or args.refine is False:
         return None
     try:
-        prior, path = load_prior_of_kind(motion.skeleton, args.latent_seed, "LatentPrior", "inbetween --latent-seed")
+        prior, path = load_prior_of_kind(motion.skeleton, args.latent_seed, "LatentPrior",
+                                         f"{args.command} --latent-seed")
     except CheckpointError:
         if args.latent_seed is not None:
             raise
